@@ -1,0 +1,5 @@
+//! Operations of the `pathtrace` renderer.
+
+use super::OpEntry;
+
+pub const OPS: &[OpEntry] = &[];

@@ -1,0 +1,333 @@
+//! Operations of the ray stage (`f_ray`) and its references.
+//!
+//! | op | what |
+//! | --- | --- |
+//! | `rays.generate` | camera rays of a `renderer: rays` scene: o, d, t0, t1, hit, pixel |
+//! | `rays.clip_reference` | the same rays' t0/t1 by an independent f64 closed form |
+//! | `rays.clip_list` | t0/t1/hit for rays listed in `params.rays` |
+//! | `rays.clip_list_reference` | the f64 closed form for the listed rays |
+//! | `rays.jitter_offsets` | the jittered pixel offsets of every pixel (for KS tests) |
+//! | `rays.rng_table` | `rand_u32` / `rand_f32` over a grid of keys |
+//! | `const` | tensors written out in `params.tensors` (hand-made expectations) |
+
+use std::time::Instant;
+
+use serde::Deserialize;
+
+use super::{OpCtx, OpEntry};
+use crate::camera::Camera;
+use crate::error::{Error, Result};
+use crate::rays::{clip_aabb, f_ray, Aabb, RayGen, Rays};
+use crate::real::{Precision, Real};
+use crate::rng::{rand_f32, rand_f64, rand_u32};
+use crate::tensor::{Outputs, Tensor};
+
+pub const OPS: &[OpEntry] = &[
+    OpEntry {
+        name: "rays.generate",
+        doc: "f_ray on a rays scene: o, d, t0, t1, hit, pixel; metric mrays_per_s",
+        params: &[],
+        run: generate,
+    },
+    OpEntry {
+        name: "rays.clip_reference",
+        doc: "independent f64 rays and box entry/exit by face intersection",
+        params: &[],
+        run: clip_reference,
+    },
+    OpEntry {
+        name: "rays.clip_list",
+        doc: "clip the rays in params.rays ([ox,oy,oz,dx,dy,dz] each) to params.aabb",
+        params: &["rays", "aabb", "near", "far"],
+        run: clip_list,
+    },
+    OpEntry {
+        name: "rays.clip_list_reference",
+        doc: "independent f64 face-intersection clip of params.rays",
+        params: &["rays", "aabb", "near", "far"],
+        run: clip_list_reference,
+    },
+    OpEntry {
+        name: "rays.jitter_offsets",
+        doc: "jittered pixel offsets (x and y in [0,1)) of a rays scene with jitter",
+        params: &[],
+        run: jitter_offsets,
+    },
+    OpEntry {
+        name: "rays.rng_table",
+        doc: "rand_u32 and rand_f32 for seeds x pixels x samples x dims in params",
+        params: &["seeds", "pixels", "samples", "dims"],
+        run: rng_table,
+    },
+    OpEntry {
+        name: "const",
+        doc: "tensors given literally in params.tensors: {name: {dtype, shape, data}}",
+        params: &["tensors"],
+        run: constant,
+    },
+];
+
+fn view(ctx: &OpCtx) -> Result<(Camera, RayGen)> {
+    let doc = ctx.scene()?;
+    crate::scene::rays::parse(doc)?.build()
+}
+
+fn image_shape(gen: &RayGen) -> [usize; 2] {
+    let r = gen.region();
+    [r.height as usize, r.width as usize]
+}
+
+fn rays_outputs<F: Real>(r: &Rays<F>, shape: [usize; 2], out: &mut Outputs) -> Result<()> {
+    out.tensor("o", Tensor::real3(&shape, &r.o)?);
+    out.tensor("d", Tensor::real3(&shape, &r.d)?);
+    out.tensor("t0", Tensor::real(&shape, r.t0.clone())?);
+    out.tensor("t1", Tensor::real(&shape, r.t1.clone())?);
+    let hit: Vec<u8> = (0..r.len()).map(|i| r.hits(i) as u8).collect();
+    let hits = hit.iter().filter(|&&h| h == 1).count() as u64;
+    out.tensor("hit", Tensor::from_shape_vec(&shape, hit)?);
+    out.tensor("pixel", Tensor::from_shape_vec(&shape, r.pixel.iter().map(|&p| p as i32).collect())?);
+    out.counter("rays", r.len() as u64).counter("hits", hits);
+    Ok(())
+}
+
+fn generate(ctx: &OpCtx) -> Result<Outputs> {
+    ctx.cpu_only()?;
+    let (cam, gen) = view(ctx)?;
+    let shape = image_shape(&gen);
+    let mut out = Outputs::default();
+    let t = Instant::now();
+    match ctx.precision {
+        Precision::F32 => {
+            let r = f_ray::<f32>(&cam, &gen, &ctx.budget)?;
+            let s = t.elapsed().as_secs_f64();
+            out.metric("time_s", s).metric("mrays_per_s", r.len() as f64 / s / 1e6);
+            rays_outputs(&r, shape, &mut out)?;
+        }
+        Precision::F64 => {
+            let r = f_ray::<f64>(&cam, &gen, &ctx.budget)?;
+            let s = t.elapsed().as_secs_f64();
+            out.metric("time_s", s).metric("mrays_per_s", r.len() as f64 / s / 1e6);
+            rays_outputs(&r, shape, &mut out)?;
+        }
+    }
+    Ok(out)
+}
+
+/// Entry and exit of `o + t d` with a closed box by intersecting each of
+/// the six face planes and keeping the hits inside the face rectangle
+/// (relative slack 1e-12 for the f64 rounding of the hit point). Written
+/// apart from `rays::clip_aabb` (slab method) so that each checks the other.
+fn faces_clip(o: [f64; 3], d: [f64; 3], b: &Aabb, near: f64, far: f64) -> (f64, f64, bool) {
+    let mut ts: Vec<f64> = Vec::with_capacity(6);
+    for axis in 0..3 {
+        if d[axis] == 0.0 {
+            continue;
+        }
+        for plane in [b.min[axis], b.max[axis]] {
+            let t = (plane - o[axis]) / d[axis];
+            // Along an axis the ray does not move in, the coordinate is exact.
+            let on_face = (0..3).filter(|&k| k != axis).all(|k| {
+                let p = o[k] + t * d[k];
+                let slack = if d[k] == 0.0 { 0.0 } else { 1e-12 * (1.0 + p.abs()) };
+                p >= b.min[k] - slack && p <= b.max[k] + slack
+            });
+            if on_face {
+                ts.push(t);
+            }
+        }
+    }
+    // An axis-parallel ray lying in a face plane meets that face along a
+    // segment; its entry/exit come from the other axes' planes, found above.
+    let (lo, hi) = match (ts.iter().cloned().reduce(f64::min), ts.iter().cloned().reduce(f64::max)) {
+        (Some(a), Some(b)) => (a.max(near), b.min(far)),
+        _ => return (near, near, false),
+    };
+    if hi > lo {
+        (lo, hi, true)
+    } else {
+        (near, near, false)
+    }
+}
+
+/// The ray through pixel position (px, py), computed directly from the
+/// camera's K and C2W in f64 (independent of `camera::RealCamera`).
+fn reference_ray(cam: &Camera, px: f64, py: f64, w: u32, h: u32) -> ([f64; 3], [f64; 3]) {
+    let m = cam.c2w();
+    let rot = |v: [f64; 3]| -> [f64; 3] { [0, 1, 2].map(|r| m[r][0] * v[0] + m[r][1] * v[1] + m[r][2] * v[2]) };
+    let pos = [m[0][3], m[1][3], m[2][3]];
+    match cam {
+        Camera::Pinhole { k, .. } => {
+            let d = rot([(px - k.cx) / k.fx, (k.cy - py) / k.fy, -1.0]);
+            let n = d.iter().map(|x| x * x).sum::<f64>().sqrt();
+            (pos, d.map(|x| x / n))
+        }
+        Camera::Orthographic { half_width, half_height, .. } => {
+            let x = half_width * (2.0 * px / w as f64 - 1.0);
+            let y = half_height * (1.0 - 2.0 * py / h as f64);
+            let oc = rot([x, y, 0.0]);
+            ([oc[0] + pos[0], oc[1] + pos[1], oc[2] + pos[2]], rot([0.0, 0.0, -1.0]))
+        }
+    }
+}
+
+fn clip_reference(ctx: &OpCtx) -> Result<Outputs> {
+    let (cam, gen) = view(ctx)?;
+    let roi = gen.region();
+    let shape = image_shape(&gen);
+    let n = shape[0] * shape[1];
+    let (mut t0, mut t1, mut hit, mut ds) = (vec![0.0; n], vec![0.0; n], vec![0u8; n], vec![[0.0; 3]; n]);
+    for i in 0..n {
+        let u = roi.x + (i as u32 % roi.width);
+        let v = roi.y + (i as u32 / roi.width);
+        let pixel = v * gen.width + u;
+        let (jx, jy) = gen.jitter.map_or((0.5, 0.5), |j| (rand_f64(j.seed, pixel, j.sample, 0), rand_f64(j.seed, pixel, j.sample, 1)));
+        let (o, d) = reference_ray(&cam, u as f64 + jx, v as f64 + jy, gen.width, gen.height);
+        let (a, b, h) = faces_clip(o, d, &gen.aabb, gen.near, gen.far);
+        (t0[i], t1[i], hit[i], ds[i]) = (a, b, h as u8, d);
+    }
+    let mut out = Outputs::default();
+    out.tensor("t0", Tensor::real(&shape, t0)?);
+    out.tensor("t1", Tensor::real(&shape, t1)?);
+    out.tensor("hit", Tensor::from_shape_vec(&shape, hit)?);
+    out.tensor("d", Tensor::real3(&shape, &ds)?);
+    Ok(out)
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct BoxParam {
+    min: [f64; 3],
+    max: [f64; 3],
+}
+
+fn listed(ctx: &OpCtx) -> Result<(Vec<[f64; 6]>, Aabb, f64, f64)> {
+    let rays: Vec<[f64; 6]> = ctx.param_req("rays")?;
+    let b = ctx.param::<BoxParam>("aabb")?.map_or(Aabb::UNIT, |b| Aabb { min: b.min, max: b.max });
+    b.validate()?;
+    let near = ctx.param_or("near", 0.0)?;
+    let far = ctx.param_or("far", f64::INFINITY)?;
+    for (i, r) in rays.iter().enumerate() {
+        let n = (r[3] * r[3] + r[4] * r[4] + r[5] * r[5]).sqrt();
+        if r.iter().any(|x| !x.is_finite()) || n == 0.0 {
+            return Err(Error::invalid(format!("{} params.rays[{i}]", ctx.case_id), "needs finite numbers and d != 0"));
+        }
+    }
+    Ok((rays, b, near, far))
+}
+
+fn unit(r: &[f64; 6]) -> ([f64; 3], [f64; 3]) {
+    let n = (r[3] * r[3] + r[4] * r[4] + r[5] * r[5]).sqrt();
+    ([r[0], r[1], r[2]], [r[3] / n, r[4] / n, r[5] / n])
+}
+
+fn clip_list_in<F: Real>(rays: &[[f64; 6]], b: &Aabb, near: f64, far: f64) -> Result<Outputs> {
+    let (mut t0, mut t1, mut hit) = (vec![], vec![], vec![]);
+    for r in rays {
+        let (o, d) = unit(r);
+        let (a, c) = clip_aabb(o.map(F::of), d.map(F::of), b.min.map(F::of), b.max.map(F::of), F::of(near), F::of(far));
+        t0.push(a);
+        t1.push(c);
+        hit.push((c > a) as u8);
+    }
+    let n = [rays.len()];
+    let mut out = Outputs::default();
+    out.tensor("t0", Tensor::real(&n, t0)?).tensor("t1", Tensor::real(&n, t1)?);
+    out.tensor("hit", Tensor::from_shape_vec(&n, hit)?);
+    Ok(out)
+}
+
+fn clip_list(ctx: &OpCtx) -> Result<Outputs> {
+    ctx.cpu_only()?;
+    let (rays, b, near, far) = listed(ctx)?;
+    match ctx.precision {
+        Precision::F32 => clip_list_in::<f32>(&rays, &b, near, far),
+        Precision::F64 => clip_list_in::<f64>(&rays, &b, near, far),
+    }
+}
+
+fn clip_list_reference(ctx: &OpCtx) -> Result<Outputs> {
+    let (rays, b, near, far) = listed(ctx)?;
+    let (mut t0, mut t1, mut hit) = (vec![], vec![], vec![]);
+    for r in &rays {
+        let (o, d) = unit(r);
+        let (a, c, h) = faces_clip(o, d, &b, near, far);
+        t0.push(a);
+        t1.push(c);
+        hit.push(h as u8);
+    }
+    let n = [rays.len()];
+    let mut out = Outputs::default();
+    out.tensor("t0", Tensor::real(&n, t0)?).tensor("t1", Tensor::real(&n, t1)?);
+    out.tensor("hit", Tensor::from_shape_vec(&n, hit)?);
+    Ok(out)
+}
+
+fn jitter_offsets(ctx: &OpCtx) -> Result<Outputs> {
+    ctx.cpu_only()?;
+    let (_, gen) = view(ctx)?;
+    let at = ctx.scene()?.at();
+    let j = gen.jitter.ok_or_else(|| Error::invalid(at, "this operation needs `jitter:`"))?;
+    let roi = gen.region();
+    let n = roi.width as usize * roi.height as usize;
+    let (mut x, mut y) = (Vec::with_capacity(n), Vec::with_capacity(n));
+    for i in 0..n as u32 {
+        let pixel = (roi.y + i / roi.width) * gen.width + roi.x + i % roi.width;
+        x.push(rand_f64(j.seed, pixel, j.sample, 0));
+        y.push(rand_f64(j.seed, pixel, j.sample, 1));
+    }
+    let mut out = Outputs::default();
+    out.tensor("jitter_x", Tensor::real(&[n], x)?).tensor("jitter_y", Tensor::real(&[n], y)?);
+    Ok(out)
+}
+
+fn rng_table(ctx: &OpCtx) -> Result<Outputs> {
+    ctx.cpu_only()?;
+    let seeds: Vec<u32> = ctx.param_req("seeds")?;
+    let pixels: Vec<u32> = ctx.param_req("pixels")?;
+    let samples: Vec<u32> = ctx.param_req("samples")?;
+    let dims: Vec<u32> = ctx.param_req("dims")?;
+    let shape = [seeds.len(), pixels.len(), samples.len(), dims.len()];
+    let (mut words, mut floats) = (vec![], vec![]);
+    for &s in &seeds {
+        for &p in &pixels {
+            for &k in &samples {
+                for &d in &dims {
+                    words.push(rand_u32(s, p, k, d));
+                    floats.push(rand_f32(s, p, k, d));
+                }
+            }
+        }
+    }
+    let mut out = Outputs::default();
+    out.tensor("words", Tensor::from_shape_vec(&shape, words)?);
+    out.tensor("floats", Tensor::from_shape_vec(&shape, floats)?);
+    Ok(out)
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct ConstTensor {
+    dtype: String,
+    #[serde(default)]
+    shape: Option<Vec<usize>>,
+    data: Vec<f64>,
+}
+
+fn constant(ctx: &OpCtx) -> Result<Outputs> {
+    let tensors: std::collections::BTreeMap<String, ConstTensor> = ctx.param_req("tensors")?;
+    let mut out = Outputs::default();
+    for (name, c) in tensors {
+        let shape = c.shape.clone().unwrap_or_else(|| vec![c.data.len()]);
+        let at = format!("{} params.tensors.{name}", ctx.case_id);
+        let t = match c.dtype.as_str() {
+            "float32" => Tensor::from_shape_vec(&shape, c.data.iter().map(|&x| x as f32).collect()),
+            "float64" => Tensor::from_shape_vec(&shape, c.data),
+            "int32" => Tensor::from_shape_vec(&shape, c.data.iter().map(|&x| x as i32).collect()),
+            "uint8" => Tensor::from_shape_vec(&shape, c.data.iter().map(|&x| x as u8).collect()),
+            other => return Err(Error::invalid(at, format!("dtype {other:?} is not float32, float64, int32 or uint8"))),
+        }
+        .map_err(|e| Error::invalid(at, e.to_string()))?;
+        out.tensor(&name, t);
+    }
+    Ok(out)
+}

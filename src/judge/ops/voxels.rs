@@ -1,0 +1,5 @@
+//! Operations of the `voxels` renderer.
+
+use super::OpEntry;
+
+pub const OPS: &[OpEntry] = &[];

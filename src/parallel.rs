@@ -1,0 +1,36 @@
+//! The one place CPU work fans out (pbrt's `ParallelFor`): every launch is
+//! labelled, and results never depend on the thread count because each index
+//! is computed independently and written to its own slot.
+
+use rayon::prelude::*;
+
+/// Fills `out[i] = f(i)` in parallel over chunks of `grain` items.
+pub fn par_map_into<T: Send>(label: &'static str, out: &mut [T], grain: usize, f: impl Fn(usize) -> T + Sync) {
+    let _span = tracing::debug_span!("par_for", label, n = out.len()).entered();
+    out.par_chunks_mut(grain.max(1)).enumerate().for_each(|(c, chunk)| {
+        let base = c * grain.max(1);
+        for (k, slot) in chunk.iter_mut().enumerate() {
+            *slot = f(base + k);
+        }
+    });
+}
+
+/// Runs `f(chunk_index, chunk)` over `grain`-sized chunks of `out` in parallel.
+pub fn par_chunks<T: Send>(label: &'static str, out: &mut [T], grain: usize, f: impl Fn(usize, &mut [T]) + Sync) {
+    let _span = tracing::debug_span!("par_chunks", label, n = out.len()).entered();
+    out.par_chunks_mut(grain.max(1)).enumerate().for_each(|(c, chunk)| f(c, chunk));
+}
+
+/// Maps `0..n` to a vector in parallel (index order is kept).
+pub fn par_collect<T: Send>(label: &'static str, n: usize, f: impl Fn(usize) -> T + Sync + Send) -> Vec<T> {
+    let _span = tracing::debug_span!("par_collect", label, n).entered();
+    (0..n).into_par_iter().map(f).collect()
+}
+
+/// Runs `f` on a pool of `threads` threads (0 = rayon's default).
+pub fn with_threads<R: Send>(threads: usize, f: impl FnOnce() -> R + Send) -> R {
+    match rayon::ThreadPoolBuilder::new().num_threads(threads).build() {
+        Ok(pool) => pool.install(f),
+        Err(_) => f(),
+    }
+}

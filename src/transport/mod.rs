@@ -1,0 +1,1 @@
+//! Curved-ray transport: GRIN media and null geodesics (seed 002).

@@ -1,0 +1,1 @@
+//! Sparse voxel octrees and the Laine–Karras ESVO traversal (seeds 001, 003).
