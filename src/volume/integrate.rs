@@ -109,7 +109,9 @@ impl<F: Real> RayAcc<F> {
         alpha
     }
 
-    /// The ray's outputs: `rgb = C + T_N bg`, `opacity = 1 - T_N`.
+    /// The ray's outputs: `rgb = C + T_N bg`, `opacity = 1 - T_N` computed
+    /// as `-expm1(log T_N)` (the same number, without the cancellation
+    /// when T_N is close to 1).
     #[inline]
     pub fn finish(&self, path: TransPath, background: [F; 3], flags: u8) -> RayOut<F> {
         let tn = self.transmittance(path);
@@ -118,7 +120,7 @@ impl<F: Real> RayAcc<F> {
             trans: tn,
             log_trans: self.log_t,
             depth: self.depth,
-            opacity: F::one() - tn,
+            opacity: -self.log_t.exp_m1(),
             n: self.n,
             saturated: self.saturated,
             flags,
@@ -282,7 +284,7 @@ mod tests {
         assert!((o.rgb[0] - (1.0 - q.powi(10))).abs() < 1e-14);
         assert!((o.rgb[2] - (0.25 * (1.0 - q.powi(10)) + q.powi(10))).abs() < 1e-14);
         assert!((a[3] - (1.0 - q)).abs() < 1e-15 && (l[3] + 0.6).abs() < 1e-15);
-        assert_eq!(o.opacity, 1.0 - o.trans);
+        assert!((o.opacity - (1.0 - o.trans)).abs() < 1e-15);
     }
 
     #[test]
