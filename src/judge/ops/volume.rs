@@ -779,6 +779,46 @@ mod measure {
 
     #[test]
     #[ignore]
+    fn print_hard() {
+        let cases: Vec<(&str, Vec<&str>)> = vec![
+            ("tiny", vec!["s=1.0e-7"]),
+            ("long", vec!["s=0.5", "dt=2.0e-5", "max_steps=200000", "early_stop=0", "width=4", "height=4"]),
+            ("long_log", vec!["s=0.5", "dt=2.0e-5", "max_steps=200000", "early_stop=0", "width=4", "height=4", "transmittance=log"]),
+            ("graze", vec!["camera={type: ortho, position: [0, 0, 3], target: [0, 0, 0], half_width: 2, half_height: 2}", "width=2", "height=2"]),
+            ("maxsteps", vec!["max_steps=50", "early_stop=0"]),
+        ];
+        for (name, sets) in cases {
+            let r = run("volume.reference_quadrature", "vol_constant.yaml", &sets, Precision::F64, "{}");
+            let o = run("volume.forward", "vol_constant.yaml", &sets, Precision::F32, "{}");
+            for n in ["rgb", "trans", "logtrans", "depth", "opacity", "nsamples", "hit"] {
+                let (a, rl) = diff(&o, &r, n);
+                println!("{name} f32 vs quad {n}: abs {a:.3e} rel {rl:.3e}");
+            }
+            println!("{name} counters {:?}", o.counters);
+        }
+        let sets = ["camera={type: pinhole, position: [0, 1, 3], target: [0, 1, 0], fov_y: 40}", "width=5", "height=5"];
+        let r = run("volume.reference_quadrature", "vol_gaussian.yaml", &sets, Precision::F64, "{}");
+        let o = run("volume.forward", "vol_gaussian.yaml", &sets, Precision::F32, "{}");
+        for n in ["rgb", "trans", "logtrans", "nsamples", "hit"] {
+            let (a, rl) = diff(&o, &r, n);
+            println!("pin_graze f32 vs quad {n}: abs {a:.3e} rel {rl:.3e}");
+        }
+        println!("{:?}", o.tensors["hit"]);
+        for prec in [Precision::F32, Precision::F64] {
+            let a = run("volume.forward", "vol_gaussian.yaml", &["transmittance=log"], prec, "{}");
+            let b = run("volume.forward", "vol_gaussian.yaml", &[], prec, "{}");
+            for n in ["rgb", "trans", "logtrans", "opacity", "depth"] {
+                let (x, rl) = diff(&a, &b, n);
+                println!("log vs T {prec:?} {n}: abs {x:.3e} rel {rl:.3e}");
+            }
+        }
+        let s = run("volume.samples", "vol_gaussian.yaml", &["sampling=stratified", "seed=7"], Precision::F32, "{}");
+        let u = s.tensors["u"].to_f64_vec();
+        println!("u mean {} n {}", u.iter().sum::<f64>() / u.len() as f64, u.len());
+    }
+
+    #[test]
+    #[ignore]
     fn print_errors() {
         let scenes = [
             "vol_constant",
