@@ -788,33 +788,79 @@ mod measure {
             ("maxsteps", vec!["max_steps=50", "early_stop=0"]),
         ];
         for (name, sets) in cases {
-            let r = run("volume.reference_quadrature", "vol_constant.yaml", &sets, Precision::F64, "{}");
-            let o = run("volume.forward", "vol_constant.yaml", &sets, Precision::F32, "{}");
-            for n in ["rgb", "trans", "logtrans", "depth", "opacity", "nsamples", "hit"] {
+            let r = run(
+                "volume.reference_quadrature",
+                "vol_constant.yaml",
+                &sets,
+                Precision::F64,
+                "{}",
+            );
+            let o = run(
+                "volume.forward",
+                "vol_constant.yaml",
+                &sets,
+                Precision::F32,
+                "{}",
+            );
+            for n in [
+                "rgb", "trans", "logtrans", "depth", "opacity", "nsamples", "hit",
+            ] {
                 let (a, rl) = diff(&o, &r, n);
                 println!("{name} f32 vs quad {n}: abs {a:.3e} rel {rl:.3e}");
             }
             println!("{name} counters {:?}", o.counters);
         }
-        let sets = ["camera={type: pinhole, position: [0, 1, 3], target: [0, 1, 0], fov_y: 40}", "width=5", "height=5"];
-        let r = run("volume.reference_quadrature", "vol_gaussian.yaml", &sets, Precision::F64, "{}");
-        let o = run("volume.forward", "vol_gaussian.yaml", &sets, Precision::F32, "{}");
+        let sets = [
+            "camera={type: pinhole, position: [0, 1, 3], target: [0, 1, 0], fov_y: 40}",
+            "width=5",
+            "height=5",
+        ];
+        let r = run(
+            "volume.reference_quadrature",
+            "vol_gaussian.yaml",
+            &sets,
+            Precision::F64,
+            "{}",
+        );
+        let o = run(
+            "volume.forward",
+            "vol_gaussian.yaml",
+            &sets,
+            Precision::F32,
+            "{}",
+        );
         for n in ["rgb", "trans", "logtrans", "nsamples", "hit"] {
             let (a, rl) = diff(&o, &r, n);
             println!("pin_graze f32 vs quad {n}: abs {a:.3e} rel {rl:.3e}");
         }
         println!("{:?}", o.tensors["hit"]);
         for prec in [Precision::F32, Precision::F64] {
-            let a = run("volume.forward", "vol_gaussian.yaml", &["transmittance=log"], prec, "{}");
+            let a = run(
+                "volume.forward",
+                "vol_gaussian.yaml",
+                &["transmittance=log"],
+                prec,
+                "{}",
+            );
             let b = run("volume.forward", "vol_gaussian.yaml", &[], prec, "{}");
             for n in ["rgb", "trans", "logtrans", "opacity", "depth"] {
                 let (x, rl) = diff(&a, &b, n);
                 println!("log vs T {prec:?} {n}: abs {x:.3e} rel {rl:.3e}");
             }
         }
-        let s = run("volume.samples", "vol_gaussian.yaml", &["sampling=stratified", "seed=7"], Precision::F32, "{}");
+        let s = run(
+            "volume.samples",
+            "vol_gaussian.yaml",
+            &["sampling=stratified", "seed=7"],
+            Precision::F32,
+            "{}",
+        );
         let u = s.tensors["u"].to_f64_vec();
-        println!("u mean {} n {}", u.iter().sum::<f64>() / u.len() as f64, u.len());
+        println!(
+            "u mean {} n {}",
+            u.iter().sum::<f64>() / u.len() as f64,
+            u.len()
+        );
     }
 
     #[test]
