@@ -542,7 +542,7 @@ impl<F: Real> Grid<F> {
     /// weight `f = u - i0` per axis; lerp along x, then y, then z (this order
     /// is part of the CPU/GPU contract). `floor` is done by truncation
     /// ([`floor_i64`]): no libm call in the hot loop.
-    #[inline]
+    #[inline(always)]
     pub fn trilinear<const C: usize>(&self, x: [F; 3]) -> [F; C] {
         let n = [self.nx, self.ny, self.nz];
         let mut i0 = [0usize; 3];
@@ -553,13 +553,16 @@ impl<F: Real> Grid<F> {
             let top = (n[a] - 1) as i64;
             match self.oob {
                 Oob::Clamp => {
-                    let c = u.max(F::zero()).min(F::of(top as f64));
-                    let fl = floor_i64(c).min(top - 1);
+                    let c = fmin(fmax(u, F::zero()), F::of(top as f64));
+                    let (mut fl, mut ff) = floor_i64(c);
+                    if fl > top - 1 {
+                        (fl, ff) = (top - 1, F::of((top - 1) as f64));
+                    }
                     i0[a] = fl as usize;
-                    f[a] = c - F::of(fl as f64);
+                    f[a] = c - ff;
                 }
                 Oob::Zero => {
-                    let fl = floor_i64(u);
+                    let (fl, ff) = floor_i64(u);
                     // All eight corners outside: the value is exactly 0.
                     if fl < -1 || fl > top {
                         return [F::zero(); C];
@@ -567,7 +570,7 @@ impl<F: Real> Grid<F> {
                     if fl < 0 || fl >= top {
                         inside = false;
                     }
-                    f[a] = u - F::of(fl as f64);
+                    f[a] = u - ff;
                     // -1 wraps to usize::MAX; `corner` maps it back with wrapping_add.
                     i0[a] = fl as usize;
                 }
@@ -624,18 +627,40 @@ impl<F: Real> Grid<F> {
     }
 }
 
-/// `floor(x)` as an integer by truncation and a correction (no libm call;
-/// x86-64 without SSE4.1 has no floor instruction). Values beyond +-2^62
-/// saturate, which callers treat as outside.
-#[inline]
-pub fn floor_i64<F: Real>(x: F) -> i64 {
+/// `floor(x)` as an integer and as a float, by truncation and a correction
+/// (no libm call: x86-64 without SSE4.1 has no floor instruction). Values
+/// beyond +-4.6e18 saturate there, which callers treat as outside.
+#[inline(always)]
+pub fn floor_i64<F: Real>(x: F) -> (i64, F) {
     let lim = F::of(4.6e18);
-    let x = x.max(-lim).min(lim);
+    let x = fmin(fmax(x, -lim), lim);
     let t = x.to_i64().unwrap_or(0);
-    if F::of(t as f64) > x {
-        t - 1
+    let tf = F::of(t as f64);
+    if tf > x {
+        (t - 1, tf - F::one())
     } else {
-        t
+        (t, tf)
+    }
+}
+
+/// `min` for operands known not to be NaN: one compare-select (the
+/// NaN-aware `f32::min` costs four more instructions in the hot loop).
+#[inline(always)]
+pub fn fmin<F: Real>(a: F, b: F) -> F {
+    if a < b {
+        a
+    } else {
+        b
+    }
+}
+
+/// `max` for operands known not to be NaN (see [`fmin`]).
+#[inline(always)]
+pub fn fmax<F: Real>(a: F, b: F) -> F {
+    if a > b {
+        a
+    } else {
+        b
     }
 }
 
@@ -706,7 +731,7 @@ impl<F: Real> Field<F> {
                 }
             }
             Field::Linear { a, g } => (*a + g[0] * x[0] + g[1] * x[1] + g[2] * x[2]).max(F::zero()),
-            Field::Grid(g) => g.trilinear::<1>(x)[0].max(F::zero()),
+            Field::Grid(g) => fmax(g.trilinear::<1>(x)[0], F::zero()),
         }
     }
 }
@@ -774,13 +799,13 @@ impl<F: Real> Medium<F> {
     }
 
     /// `(sigma, colour)` at `x`.
-    #[inline]
+    #[inline(always)]
     pub fn query(&self, x: [F; 3]) -> (F, [F; 3]) {
         match self {
             Medium::Split { sigma, color } => (sigma.sigma(x), color.color(x)),
             Medium::Packed(g) => {
                 let v = g.trilinear::<4>(x);
-                (v[0].max(F::zero()), [v[1], v[2], v[3]])
+                (fmax(v[0], F::zero()), [v[1], v[2], v[3]])
             }
         }
     }

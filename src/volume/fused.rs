@@ -21,7 +21,7 @@ use crate::rng::rand_f64;
 use super::field::Medium;
 use super::integrate::{RayAcc, RayOut};
 use super::occupancy::Occupancy;
-use super::sample::{walk_lattice, March};
+use super::sample::{walk_lattice, March, TransPath};
 
 /// The per-ray loop: returns the ray's result and the lattice points the
 /// occupancy bitfield skipped.
@@ -37,9 +37,27 @@ pub fn march_ray<F: Real>(
     m: &March<F>,
     occ: Option<&Occupancy<F>>,
 ) -> (RayOut<F>, u64) {
+    match m.path {
+        TransPath::Product => march_ray_path::<F, false>(o, d, t0, t1, pixel, medium, m, occ),
+        TransPath::Log => march_ray_path::<F, true>(o, d, t0, t1, pixel, medium, m, occ),
+    }
+}
+
+#[inline]
+#[allow(clippy::too_many_arguments)]
+fn march_ray_path<F: Real, const LOG: bool>(
+    o: [F; 3],
+    d: [F; 3],
+    t0: F,
+    t1: F,
+    pixel: u32,
+    medium: &Medium<F>,
+    m: &March<F>,
+    occ: Option<&Occupancy<F>>,
+) -> (RayOut<F>, u64) {
     let mut acc = RayAcc::default();
     let (flags, skipped) = walk_lattice(o, d, t0, t1, pixel, m, occ, |_, t, h, x| {
-        let tk = acc.transmittance(m.path);
+        let tk = acc.transmittance::<LOG>();
         if tk < m.early_stop {
             return false;
         }
@@ -47,7 +65,7 @@ pub fn march_ray<F: Real>(
         acc.step(tk, sigma, c, t, h);
         true
     });
-    (acc.finish(m.path, m.background, flags), skipped)
+    (acc.finish::<LOG>(m.background, flags), skipped)
 }
 
 /// Tile side in pixels.
@@ -126,7 +144,7 @@ pub fn f_fused<F: Real>(
         }
         out
     });
-    let blank = RayAcc::default().finish(m.path, m.background, 0);
+    let blank = RayAcc::default().finish::<false>(m.background, 0);
     let mut f = Fused {
         rays: vec![blank; n as usize],
         pixel: vec![0; n as usize],
