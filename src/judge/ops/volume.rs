@@ -8,6 +8,7 @@
 //! | `volume.samples` | f_samp outputs: off, ray_id, t, dt, sigma, u (stratified offsets), m |
 //! | `volume.reference_quadrature` | the discrete midpoint/stratified quadrature, f64, written here independently |
 //! | `volume.closed_form` | continuum transmittance of the analytic field (constant, slabs, gaussian via erf, shell chord, linear) |
+//! | `volume.grid_probe` / `_reference` | a density grid at seeded points in and out of the box, ours vs an independent trilinear (OOB zero / clamp) |
 //! | `volume.perf` | fused vs unfused: samples/s, integrated_samples/s, pixels/s, fused_speedup |
 //! | `volume.dt_sweep` | seconds and max error vs the closed form for each dt in `params.dts`, f32 and f64 |
 //!
@@ -69,6 +70,18 @@ pub const OPS: &[OpEntry] = &[
         doc: "continuum closed forms of trans, logtrans, opacity, rgb for analytic fields (and grids sampled from them)",
         params: &[],
         run: op_closed_form,
+    },
+    OpEntry {
+        name: "volume.grid_probe",
+        doc: "the scene's density grid at params.n seeded points in [-1.5, 1.5]^3 (in and out of the box): value",
+        params: &["n", "seed"],
+        run: op_grid_probe,
+    },
+    OpEntry {
+        name: "volume.grid_probe_reference",
+        doc: "the same points through the independent f64 trilinear reference: value, inside",
+        params: &["n", "seed"],
+        run: op_grid_probe_reference,
     },
     OpEntry {
         name: "volume.perf",
@@ -377,6 +390,63 @@ fn op_reference(ctx: &OpCtx) -> Result<Outputs> {
     out.tensor("opacity", Tensor::real(&s, opac)?);
     out.tensor("nsamples", Tensor::from_shape_vec(&s, ns)?);
     out.tensor("hit", Tensor::from_shape_vec(&s, hit)?);
+    Ok(out)
+}
+
+/// The probe points (f64) and the scene's grid.
+fn probe_setup(ctx: &OpCtx) -> Result<(Vec<[f64; 3]>, GridDesc)> {
+    let (_, _, p, _) = load(ctx)?;
+    let FieldDesc::Grid(g) = p.field else {
+        return Err(Error::invalid(
+            ctx.case_id,
+            "grid_probe needs a scene whose field is a grid",
+        ));
+    };
+    let n: u32 = ctx.param_or("n", 4096)?;
+    let seed: u32 = ctx.param_or("seed", 1)?;
+    if n == 0 || n > 1 << 22 {
+        return Err(Error::invalid(
+            format!("{} params.n", ctx.case_id),
+            "must be in 1..=4194304",
+        ));
+    }
+    let pts = (0..n)
+        .map(|i| [0, 1, 2].map(|d| rand_f64(seed, i, 0, d) * 3.0 - 1.5))
+        .collect();
+    Ok((pts, g))
+}
+
+fn grid_probe_in<F: Real>(pts: &[[f64; 3]], g: &GridDesc) -> Result<Tensor> {
+    let grid = crate::volume::field::Grid::<F>::from_desc(g);
+    let v: Vec<F> = pts
+        .iter()
+        .map(|x| grid.trilinear::<1>(x.map(F::of))[0])
+        .collect();
+    Tensor::real(&[pts.len()], v)
+}
+
+fn op_grid_probe(ctx: &OpCtx) -> Result<Outputs> {
+    ctx.cpu_only()?;
+    let (pts, g) = probe_setup(ctx)?;
+    let mut out = Outputs::default();
+    let t = match ctx.precision {
+        Precision::F32 => grid_probe_in::<f32>(&pts, &g)?,
+        Precision::F64 => grid_probe_in::<f64>(&pts, &g)?,
+    };
+    out.tensor("value", t);
+    Ok(out)
+}
+
+fn op_grid_probe_reference(ctx: &OpCtx) -> Result<Outputs> {
+    let (pts, g) = probe_setup(ctx)?;
+    let v: Vec<f64> = pts.iter().map(|&x| ref_grid(&g, x, 0)).collect();
+    let inside: Vec<u8> = pts
+        .iter()
+        .map(|x| (0..3).all(|a| x[a] >= g.bmin[a] && x[a] <= g.bmax[a]) as u8)
+        .collect();
+    let mut out = Outputs::default();
+    out.tensor("value", Tensor::real(&[pts.len()], v)?);
+    out.tensor("inside", Tensor::from_shape_vec(&[pts.len()], inside)?);
     Ok(out)
 }
 
