@@ -6,6 +6,7 @@
 //! which rejects unknown keys. Errors name the file and the key path.
 
 pub mod camera;
+pub mod pathtrace;
 pub mod rays;
 pub mod volume;
 
@@ -165,6 +166,7 @@ pub fn validate(doc: &SceneDoc) -> Result<()> {
     match doc.renderer()? {
         "rays" => rays::parse(doc).and_then(|v| v.build()).map(drop),
         "volume" => volume::load(doc).map(drop),
+        "pathtrace" => pathtrace::parse(doc).map(drop),
         other => Err(Error::invalid(
             doc.at(),
             format!(
