@@ -7,6 +7,7 @@
 //! | medium | `n^2(x)` | parameters |
 //! | --- | --- | --- |
 //! | `Luneburg` | `2 - r^2/R^2` for `r < R`, 1 outside | radius R |
+//! | `LuneburgCore` | `2 - r^2/R^2` everywhere (the lens formula continued past its sphere) | radius R |
 //! | `FishEye` (Maxwell) | `n0^2 / (1 + r^2/R^2)^2` | n0, R |
 //! | `Fibre` (parabolic, axis = x) | `n0^2 (1 - alpha^2 rho^2)`, `rho^2 = y^2 + z^2` | n0, alpha |
 //! | `Sech` (axis = x) | `n0^2 sech^2(alpha rho)` | n0, alpha |
@@ -120,10 +121,27 @@ impl<F: Real> Grid<F> {
 /// A GRIN medium (closed set; see the module table).
 #[derive(Clone, Debug, PartialEq)]
 pub enum Medium<F> {
-    Luneburg { radius: F },
-    FishEye { n0: F, radius: F },
-    Fibre { n0: F, alpha: F },
-    Sech { n0: F, alpha: F },
+    Luneburg {
+        radius: F,
+    },
+    /// The Luneburg formula without its exterior: what a ray inside the lens
+    /// integrates until the exit event, so that the step straddling the
+    /// sphere sees a smooth field (the kink would cost the tier its order).
+    LuneburgCore {
+        radius: F,
+    },
+    FishEye {
+        n0: F,
+        radius: F,
+    },
+    Fibre {
+        n0: F,
+        alpha: F,
+    },
+    Sech {
+        n0: F,
+        alpha: F,
+    },
     Grid(Grid<F>),
 }
 
@@ -151,6 +169,11 @@ impl<F: Real> Medium<F> {
                 } else {
                     (F::one(), [zero; 3])
                 }
+            }
+            Medium::LuneburgCore { radius } => {
+                let r2 = x[0] * x[0] + x[1] * x[1] + x[2] * x[2];
+                let rr = *radius * *radius;
+                (two - r2 / rr, x.map(|c| -two * c / rr))
             }
             Medium::FishEye { n0, radius } => {
                 let q = (x[0] * x[0] + x[1] * x[1] + x[2] * x[2]) / (*radius * *radius);
@@ -187,7 +210,7 @@ impl<F: Real> Medium<F> {
     /// straight lines), for media that have one.
     pub fn boundary_radius(&self) -> Option<F> {
         match self {
-            Medium::Luneburg { radius } => Some(*radius),
+            Medium::Luneburg { radius } | Medium::LuneburgCore { radius } => Some(*radius),
             _ => None,
         }
     }
@@ -256,6 +279,7 @@ mod tests {
     fn analytic_gradients_match_central_differences() {
         let media = [
             Medium::Luneburg { radius: 1.3 },
+            Medium::LuneburgCore { radius: 1.3 },
             Medium::FishEye {
                 n0: 2.0,
                 radius: 1.0,

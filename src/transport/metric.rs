@@ -93,6 +93,24 @@ impl<F: Real> Spacetime<F> {
     }
 }
 
+impl<F: Real> Spacetime<F> {
+    /// Covariant momentum of a photon of unit local energy leaving a
+    /// static observer at radius `r` in the equatorial plane at angle `psi`
+    /// from the inward radial direction (towards +phi): in the observer's
+    /// orthonormal frame `p = (1, -cos psi, 0, sin psi)`, so
+    /// `p_t = -1/sqrt(A)`, `p_r = -cos(psi)/sqrt(B)`, `p_phi = sqrt(R2) sin psi`.
+    pub fn static_observer_momentum(&self, r: F, psi: F) -> [F; 4] {
+        let c = self.radial(r);
+        let (s, co) = psi.sin_cos();
+        [
+            -F::one() / c.a.sqrt(),
+            -co / c.b.sqrt(),
+            F::zero(),
+            c.r2.sqrt() * s,
+        ]
+    }
+}
+
 impl<F: Real> Hamiltonian<F, 8> for Spacetime<F> {
     const SEPARABLE: bool = false;
 
@@ -238,6 +256,30 @@ mod tests {
         // b = 10 has its turning point near r = 8.7: r = 5 is forbidden.
         assert!(st.equatorial_momentum(5.0, 1.0, 10.0, true).is_none());
         assert_eq!(st.horizon(), Some(2.0));
+    }
+
+    #[test]
+    fn static_observer_photons_are_null() {
+        for st in [
+            Spacetime::Minkowski,
+            Spacetime::Schwarzschild { mass: 1.0f64 },
+            Spacetime::Ellis { b0: 1.0 },
+        ] {
+            for psi in [0.0, 0.7, 1.9, 3.0] {
+                let p = st.static_observer_momentum(6.0, psi);
+                let y = [
+                    0.0,
+                    6.0,
+                    std::f64::consts::FRAC_PI_2,
+                    0.0,
+                    p[0],
+                    p[1],
+                    p[2],
+                    p[3],
+                ];
+                assert!(st.h(&y).abs() < 1e-15, "{st:?} psi={psi}");
+            }
+        }
     }
 
     #[test]

@@ -16,3 +16,4 @@ pub mod grin;
 pub mod hamiltonian;
 pub mod integrate;
 pub mod metric;
+pub mod tasks;
