@@ -11,13 +11,20 @@
 //!   stop condition ([`GrinStop`]).
 
 use super::grin::Medium;
-use super::hamiltonian::Hamiltonian;
 use super::integrate::{check, trace, End, Event, EventKind, Options, Trace};
 use super::metric::Spacetime;
 use crate::budget::{bytes_for, MemBudget};
 use crate::error::{Error, Result};
 use crate::parallel::par_collect;
 use crate::real::Real;
+
+/// A scene's task (closed set).
+#[derive(Clone, Debug, PartialEq)]
+pub enum Task<F> {
+    Deflection(Deflection<F>),
+    Observer(ObserverScan<F>),
+    Grin(GrinRays<F>),
+}
 
 /// `reason` code of a GRIN ray that never meets its lens.
 pub const MISSED_LENS: i32 = -5;
@@ -497,12 +504,6 @@ pub fn grin_rays<F: Real>(
         }
     }
     Ok(out)
-}
-
-/// `|H|` at a state, for callers that check a start (kept beside the
-/// tasks so ops need not name the trait).
-pub fn hamiltonian_abs<F: Real, const N: usize, H: Hamiltonian<F, N>>(sys: &H, y: &[F; N]) -> F {
-    sys.h(y).abs()
 }
 
 #[cfg(test)]
