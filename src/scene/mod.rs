@@ -9,6 +9,7 @@ pub mod camera;
 pub mod pathtrace;
 pub mod rays;
 pub mod volume;
+pub mod transport;
 
 use std::path::{Path, PathBuf};
 
@@ -167,6 +168,7 @@ pub fn validate(doc: &SceneDoc) -> Result<()> {
         "rays" => rays::parse(doc).and_then(|v| v.build()).map(drop),
         "volume" => volume::load(doc).map(drop),
         "pathtrace" => pathtrace::parse(doc).map(drop),
+        "transport" => transport::parse(doc).map(drop),
         other => Err(Error::invalid(
             doc.at(),
             format!(
