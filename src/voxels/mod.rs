@@ -4,5 +4,6 @@
 //! Amanatides–Woo DDA over the scene predicate ([`referee`]). Seeds 001 and
 //! 003; SCENES.md "Sparse voxels" fixes voxel indexing and outputs.
 
+pub mod cast;
 pub mod octree;
 pub mod shape;
