@@ -326,16 +326,32 @@ pub fn cast<F: CastReal>(
     };
     let shift_fine = depth.saturating_sub(level);
     let grid = F::exp2i(depth as i32 - 1);
-    let t = t_min;
-    let hitp = [0, 1, 2].map(|a| o[a] + t * d[a]);
-    let mut voxel = [0u32; 3];
-    for a in 0..3 {
-        // Undo the mirroring to get the voxel's low corner in [1, 2).
-        let lo_oct = if octant >> a & 1 == 0 {
+    // Undo the mirroring to get the voxel's low corner in [1, 2).
+    let lo_oct = [0, 1, 2].map(|a| {
+        if octant >> a & 1 == 0 {
             F::of(3.0) - scale_exp2 - pos[a]
         } else {
             pos[a]
-        };
+        }
+    });
+    // t from the entered face in world units, `(x - o_a) / d_a`: the same
+    // plane as t_min, without the rounding of the large `bias` terms.
+    let t = match entered {
+        Some(a) if d[a] != F::zero() => {
+            let face = if dir[a] > F::zero() {
+                lo_oct[a]
+            } else {
+                lo_oct[a] + scale_exp2
+            };
+            let x = two * face - F::of(3.0);
+            ((x - o[a]) / d[a]).max(F::of(p.near))
+        }
+        _ => t_min,
+    };
+    let hitp = [0, 1, 2].map(|a| o[a] + t * d[a]);
+    let mut voxel = [0u32; 3];
+    for a in 0..3 {
+        let lo_oct = lo_oct[a];
         let box_idx = ((lo_oct - one) * F::exp2i(level as i32))
             .to_u64()
             .unwrap_or(0) as u32;
