@@ -7,6 +7,7 @@
 
 pub mod camera;
 pub mod rays;
+pub mod voxels;
 
 use std::path::{Path, PathBuf};
 
@@ -154,6 +155,7 @@ impl SceneDoc {
 pub fn validate(doc: &SceneDoc) -> Result<()> {
     match doc.renderer()? {
         "rays" => rays::parse(doc).and_then(|v| v.build()).map(drop),
+        "voxels" => voxels::parse(doc).map(drop),
         other => Err(Error::invalid(
             doc.at(),
             format!(

@@ -151,7 +151,9 @@ fn max3<F: Real>(a: [F; 3]) -> F {
 }
 
 /// Casts the ray `o + t d`, t in `[near, far]`, through the octree `nodes`
-/// (layout of [`super::octree`]) of depth `depth`.
+/// (layout of [`super::octree`]) of depth `depth`. Per-axis loops index
+/// arrays as the WGSL twin will.
+#[allow(clippy::needless_range_loop)]
 pub fn cast<F: CastReal>(
     nodes: &[u32],
     depth: u32,

@@ -6,7 +6,9 @@
 
 pub mod cast;
 pub mod octree;
+pub mod raysets;
 pub mod referee;
+pub mod render;
 pub mod shape;
 
 #[cfg(test)]

@@ -314,6 +314,7 @@ struct Writer<'a> {
 impl Writer<'_> {
     /// Writes node `t`'s descriptor at slot `at` (pointer fields `far`,
     /// `ptr` chosen by the parent) and its subtree from slot `body`.
+    #[allow(clippy::needless_range_loop)]
     fn write(&mut self, t: &Tmp, at: u64, body: u64, far: bool, ptr: u64) -> Result<()> {
         let k = t.nonleaf.count_ones() as usize;
         let d = Descriptor {
