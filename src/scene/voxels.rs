@@ -86,7 +86,7 @@ pub fn parse(doc: &SceneDoc) -> Result<VoxelScene> {
     };
     shape
         .validate(rest.depth)
-        .map_err(|e| Error::invalid(format!("{at}"), e.to_string()))?;
+        .map_err(|e| Error::invalid(at.clone(), e.to_string()))?;
     let lod = match rest.lod {
         Some(l) => {
             if !(l.orig_size >= 0.0

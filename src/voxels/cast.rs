@@ -558,7 +558,7 @@ mod tests {
             let d = norm([c[0] - o[0], c[1] - o[1], c[2] - o[2]]);
             let h = cast::<f64>(&t.nodes, depth, o, d, &CastParams::default());
             assert!(h.hit && h.voxel == p, "{p:?} {h:?}");
-            assert_eq!(h.attr < t.stats.leaves as u32, true);
+            assert!(h.attr < t.stats.leaves as u32);
         }
         // Along the line: a ray down the z axis of the line's voxel column.
         let c = [-1.0 + 1000.5 * w, -1.0 + 2000.5 * w];
