@@ -6,7 +6,7 @@
 //! | `shape` | `{type: sphere, radius}` (centre-inside test), `{type: menger, level}` or `{type: boxes, boxes: [{min: [i, j, k], max: [i, j, k]}, ..]}` (inclusive voxel boxes) | required |
 //! | `depth` | octree depth d: 2^d voxels per axis over [-1, 1]^3, 1..=22 | required |
 //! | `lod` | `{orig_size, dir_size}`: LOD cut when `orig_size + t dir_size` >= voxel size (world units) | off |
-//! | `max_iter` | cast iteration cap per ray | 65536 |
+//! | `max_iter` | cast iteration cap per ray | max(2^16, 16 * 2^depth) |
 //! | view keys | `camera`, `width`, `height`, `roi`, `near`, `far`, ... | see `scene/rays.rs` |
 
 use serde::Deserialize;
@@ -14,7 +14,7 @@ use serde::Deserialize;
 use super::rays::{ViewSpec, VIEW_KEYS};
 use super::SceneDoc;
 use crate::error::{Error, Result};
-use crate::voxels::cast::{Lod, DEFAULT_MAX_ITER};
+use crate::voxels::cast::{default_max_iter, Lod};
 use crate::voxels::shape::{Shape, VoxelBox};
 
 #[derive(Clone, Copy, Debug, Deserialize, PartialEq)]
@@ -40,10 +40,6 @@ pub struct LodSpec {
     pub dir_size: f64,
 }
 
-fn default_max_iter() -> u32 {
-    DEFAULT_MAX_ITER
-}
-
 /// The non-view keys of a voxel scene.
 #[derive(Clone, Debug, Deserialize, PartialEq)]
 #[serde(deny_unknown_fields)]
@@ -53,8 +49,8 @@ pub struct VoxelsRest {
     pub depth: u32,
     #[serde(default)]
     pub lod: Option<LodSpec>,
-    #[serde(default = "default_max_iter")]
-    pub max_iter: u32,
+    #[serde(default)]
+    pub max_iter: Option<u32>,
 }
 
 /// A parsed, validated voxel scene.
@@ -106,7 +102,8 @@ pub fn parse(doc: &SceneDoc) -> Result<VoxelScene> {
         }
         None => None,
     };
-    if rest.max_iter == 0 {
+    let max_iter = rest.max_iter.unwrap_or(default_max_iter(rest.depth));
+    if max_iter == 0 {
         return Err(Error::invalid(
             format!("{at} key `max_iter`"),
             "must be at least 1",
@@ -118,7 +115,7 @@ pub fn parse(doc: &SceneDoc) -> Result<VoxelScene> {
         shape,
         depth: rest.depth,
         lod,
-        max_iter: rest.max_iter,
+        max_iter,
     })
 }
 

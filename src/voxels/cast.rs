@@ -27,8 +27,12 @@ use crate::real::Real;
 /// Scale of the root's children + 1: f32's mantissa bits.
 pub const S_MAX: i32 = 23;
 
-/// Default iteration cap.
-pub const DEFAULT_MAX_ITER: u32 = 1 << 16;
+/// Default iteration cap for a depth-`depth` tree: `max(2^16, 16 * 2^depth)`.
+/// A ray grazing a one-voxel-thick line of `2^depth` voxels legitimately takes
+/// a few iterations per voxel, so the cap grows with the grid.
+pub fn default_max_iter(depth: u32) -> u32 {
+    (16u64 << depth.min(24)).clamp(1 << 16, u32::MAX as u64) as u32
+}
 
 /// A float the cast runs in: the bit-pattern tricks need its layout.
 pub trait CastReal: Real {
@@ -90,7 +94,8 @@ pub struct CastParams {
     pub near: f64,
     pub far: f64,
     pub lod: Option<Lod>,
-    /// Loop iterations after which the ray is given up as a miss (`capped`).
+    /// Loop iterations after which the ray is given up as a miss (`capped`);
+    /// see [`default_max_iter`] (the `Default` uses 2^16).
     pub max_iter: u32,
 }
 
@@ -100,7 +105,7 @@ impl Default for CastParams {
             near: 0.0,
             far: f64::INFINITY,
             lod: None,
-            max_iter: DEFAULT_MAX_ITER,
+            max_iter: 1 << 16,
         }
     }
 }

@@ -3,7 +3,7 @@
 //!
 //! | op | what |
 //! | --- | --- |
-//! | `voxels.render` | build the octree, cast every ray: hit, t, leaf, normal, image, iters; build and cast metrics |
+//! | `voxels.render` | build the octree, cast every ray: hit, t, leaf, normal, image, iters, leaf_key; build and cast metrics |
 //! | `voxels.referee` | the exact f64 DDA over the scene predicate on the same rays, with tie flags |
 //! | `voxels.sphere_bounds` | analytic entry distances of the spheres r -+ half a voxel diagonal (sphere scenes) |
 //! | `voxels.bench` | Mrays/s of octree and referee, coherent and incoherent, build time, bytes per voxel |
@@ -152,12 +152,32 @@ fn with_3(shape: &[usize]) -> Vec<usize> {
     s
 }
 
+/// `i + N (j + N k)` (N = 2^depth) as f64, -1 on a miss: one number per ray
+/// for counting differing voxels; exact for depth <= 17.
+fn leaf_key(leaf: &[[i32; 3]], depth: u32) -> Vec<f64> {
+    let n = (1u64 << depth) as f64;
+    leaf.iter()
+        .map(|v| {
+            if v[0] < 0 {
+                -1.0
+            } else {
+                v[0] as f64 + n * (v[1] as f64 + n * v[2] as f64)
+            }
+        })
+        .collect()
+}
+
 fn put_hits<F: Real>(
     out: &mut Outputs,
     h: VoxelHits<F>,
     shape: &[usize],
+    depth: u32,
     image: bool,
 ) -> Result<()> {
+    out.tensor(
+        "leaf_key",
+        Tensor::from_shape_vec(shape, leaf_key(&h.leaf, depth))?,
+    );
     if image {
         let img: Vec<[F; 3]> = h
             .hit
@@ -222,7 +242,7 @@ fn render_in<F: CastReal>(ctx: &OpCtx, sc: &VoxelScene, tree: &Octree) -> Result
         .metric("mrays_per_s", n as f64 / s.max(1e-12) / 1e6);
     out.counter("rays", n)
         .counter("hits", h.hit.iter().map(|&x| x as u64).sum());
-    put_hits(&mut out, h, &b.shape, true)?;
+    put_hits(&mut out, h, &b.shape, sc.depth, true)?;
     if let Some(k) = b.kind {
         out.tensor("kind", Tensor::from_shape_vec(&b.shape, k)?);
     }
@@ -273,7 +293,7 @@ fn referee_in<F: Real>(ctx: &OpCtx, sc: &VoxelScene) -> Result<Outputs> {
     out.tensor("near_tie", Tensor::from_shape_vec(&b.shape, r.near_tie)?);
     out.tensor("untied", Tensor::from_shape_vec(&b.shape, untied)?);
     out.tensor("clear", Tensor::from_shape_vec(&b.shape, clear)?);
-    put_hits(&mut out, r.hits, &b.shape, false)?;
+    put_hits(&mut out, r.hits, &b.shape, sc.depth, false)?;
     Ok(out)
 }
 
