@@ -196,6 +196,11 @@ pub fn cast<F: CastReal>(
     let mut h = t_max;
     t_min = t_min.max(F::of(p.near));
     t_max = t_max.min(F::of(p.far));
+    if t_min > t_max {
+        // The ray misses the root box (or its interval ends before it):
+        // ESVO would find this by advancing out of the root; stop now.
+        return CastHit::miss(0, false);
+    }
     let lod = p
         .lod
         .map(|l| (F::of(l.orig_size) * half, F::of(l.dir_size) * half));

@@ -2,10 +2,12 @@
 //! `parallel`), producing SCENES.md's per-ray outputs, and the shading of
 //! `image`.
 //!
-//! Shading (the project's choice, judged by eye): hits get albedo
-//! (0.85, 0.80, 0.70) times `0.2 + 0.8 max(0, n . L)`, L = normalize(0.5,
-//! 0.8, 0.3), with n the entered face's normal (a ray starting inside solid
-//! gets 0.5); misses get the background (0.05, 0.05, 0.08).
+//! Shading (the project's choice, judged by eye): a hit gets the albedo of
+//! its face's axis (x faces (0.90, 0.55, 0.40), y faces (0.85, 0.85, 0.80),
+//! z faces (0.45, 0.60, 0.90)) times `0.35 + 0.65 max(0, n . L)`,
+//! L = normalize(0.4, 0.9, 0.2), n the entered face's normal; a ray that
+//! starts inside solid gets grey 0.5; misses get the background
+//! (0.05, 0.05, 0.08).
 
 use crate::parallel::par_collect;
 use crate::real::Real;
@@ -35,23 +37,23 @@ pub struct RefereeHits {
     pub near_tie: Vec<u8>,
 }
 
-const ALBEDO: [f64; 3] = [0.85, 0.80, 0.70];
+const ALBEDO: [[f64; 3]; 3] = [[0.90, 0.55, 0.40], [0.85, 0.85, 0.80], [0.45, 0.60, 0.90]];
 const BACKGROUND: [f64; 3] = [0.05, 0.05, 0.08];
+const LIGHT: [f64; 3] = [0.4, 0.9, 0.2];
 
 /// The shaded colour of one ray (see the module doc).
 pub fn shade<F: Real>(hit: bool, normal: [F; 3]) -> [F; 3] {
     if !hit {
         return BACKGROUND.map(F::of);
     }
-    let l = [0.5f64, 0.8, 0.3];
-    let ln = (l[0] * l[0] + l[1] * l[1] + l[2] * l[2]).sqrt();
     let n = normal.map(|x| x.f64());
-    let k = if n == [0.0; 3] {
-        0.5
-    } else {
-        0.2 + 0.8 * ((n[0] * l[0] + n[1] * l[1] + n[2] * l[2]) / ln).max(0.0)
+    let Some(axis) = (0..3).find(|&a| n[a] != 0.0) else {
+        return [F::of(0.5); 3];
     };
-    ALBEDO.map(|a| F::of(a * k))
+    let l = LIGHT;
+    let ln = (l[0] * l[0] + l[1] * l[1] + l[2] * l[2]).sqrt();
+    let k = 0.35 + 0.65 * ((n[0] * l[0] + n[1] * l[1] + n[2] * l[2]) / ln).max(0.0);
+    ALBEDO[axis].map(|a| F::of(a * k))
 }
 
 /// Casts every ray `(o[i], d[i])`, t in `[p.near, p.far]`.
@@ -120,6 +122,7 @@ mod tests {
         assert_eq!(shade::<f64>(false, [0.0; 3]), BACKGROUND);
         let up = shade::<f64>(true, [0.0, 1.0, 0.0]);
         let down = shade::<f64>(true, [0.0, -1.0, 0.0]);
-        assert!(up[0] > down[0] && (down[0] - 0.2 * 0.85).abs() < 1e-12);
+        assert!(up[0] > down[0] && (down[0] - 0.35 * 0.85).abs() < 1e-12);
+        assert_eq!(shade::<f32>(true, [0.0; 3]), [0.5; 3]);
     }
 }
