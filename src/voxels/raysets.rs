@@ -48,7 +48,8 @@ pub enum HardKind {
     Inside,
     /// Starting outside the root, aimed at an interesting voxel's centre.
     Aimed,
-    /// Axis-parallel, passing 1e-3 voxel widths outside an interesting voxel's face.
+    /// Axis-parallel, passing 1e-3 voxel widths outside the face of the last
+    /// solid voxel found walking sideways from an interesting one.
     JustMissing,
 }
 
@@ -178,9 +179,21 @@ pub fn hard(shape: &Shape, depth: u32, per_kind: u32, seed: u32) -> Vec<(Ray64, 
                 HardKind::JustMissing => {
                     let mut o = [0.0; 3];
                     o[a] = -1.5 * s;
-                    let side = if u(i, 0) < 0.5 { -1.0 } else { 1.0 };
-                    o[b] = centre(v[b]) + side * (0.5 + 1e-3) * w;
-                    o[c] = centre(v[c]);
+                    let side = if u(i, 0) < 0.5 { -1i64 } else { 1 };
+                    // Walk from the voxel towards `side` along b to the last
+                    // solid one, so the ray grazes a face with empty space beyond.
+                    let mut e = v;
+                    for _ in 0..n {
+                        let mut next = e;
+                        next[b] += side;
+                        let inside = (0..n).contains(&next[b]);
+                        if !inside || !shape.solid(depth, next.map(|x| x as u32)) {
+                            break;
+                        }
+                        e = next;
+                    }
+                    o[b] = centre(e[b]) + side as f64 * (0.5 + 1e-3) * w;
+                    o[c] = centre(e[c]);
                     let mut d = [0.0; 3];
                     d[a] = s;
                     (o, d)

@@ -11,7 +11,8 @@
 //! Ray sources (`params.rays`): `camera` (default: the scene's camera, tensors
 //! shaped (H, W)), `hard` (`count` rays of each hard kind, shaped (N,), plus
 //! `kind` (int32)), `incoherent` (`count` rays, origins uniform in the box,
-//! uniform directions). `seed` defaults to the run seed. Rays are made in
+//! uniform directions); `render --rays FILE` replays dumped rays (shape (N,)),
+//! and `--dump-failing` adds `rays` (N, 9). `seed` defaults to the run seed. Rays are made in
 //! the run's precision; the referee widens the same rays to f64, so it
 //! judges exactly the rays the cast saw.
 
@@ -21,7 +22,7 @@ use super::{OpCtx, OpEntry};
 use crate::budget::bytes_for;
 use crate::error::{Error, Result};
 use crate::parallel::par_collect;
-use crate::rays::{f_ray, RayGen};
+use crate::rays::{f_ray, RayGen, Rays};
 use crate::real::{Precision, Real};
 use crate::scene::voxels::VoxelScene;
 use crate::tensor::{Outputs, Tensor};
@@ -108,6 +109,20 @@ fn batch<F: Real>(ctx: &OpCtx, sc: &VoxelScene) -> Result<Batch<F>> {
     let seed: u32 = ctx.param_or("seed", ctx.seed)?;
     let count: u32 = ctx.param_or("count", 4096)?;
     let at = format!("{} params.rays", ctx.case_id);
+    if let Some(t) = ctx.rays {
+        // `render --rays FILE`: replay dumped rays (their t0/t1 columns are
+        // ignored; the scene's near/far apply).
+        let r = Rays::<F>::from_tensor(t, "--rays")?;
+        let n = r.len();
+        return Ok(Batch {
+            o: r.o,
+            d: r.d,
+            shape: vec![n],
+            near: sc.view.near,
+            far: sc.view.far,
+            kind: None,
+        });
+    }
     match src.as_str() {
         "camera" => camera_batch(ctx, sc, None),
         "hard" | "incoherent" => {
@@ -144,6 +159,21 @@ fn batch<F: Real>(ctx: &OpCtx, sc: &VoxelScene) -> Result<Batch<F>> {
             format!("{other:?} is not camera, hard or incoherent"),
         )),
     }
+}
+
+/// The batch in the (N, 9) dump layout of `Rays::to_tensor` (`--dump-failing`;
+/// `render --rays` replays it). An infinite far is written as 1e30.
+fn dump_rays<F: Real>(b: &Batch<F>) -> Tensor {
+    let n = b.o.len();
+    let far = if b.far.is_finite() { b.far } else { 1e30 };
+    Rays {
+        o: b.o.clone(),
+        d: b.d.clone(),
+        t0: vec![F::of(b.near); n],
+        t1: vec![F::of(far); n],
+        pixel: (0..n as u32).collect(),
+    }
+    .to_tensor()
 }
 
 fn with_3(shape: &[usize]) -> Vec<usize> {
@@ -238,6 +268,9 @@ fn render_in<F: CastReal>(ctx: &OpCtx, sc: &VoxelScene, tree: &Octree) -> Result
     let h = cast_all::<F>(tree, &b.o, &b.d, &p);
     let s = t0.elapsed().as_secs_f64();
     let mut out = Outputs::default();
+    if ctx.dump {
+        out.tensor("rays", dump_rays(&b));
+    }
     out.metric("cast_s", s)
         .metric("mrays_per_s", n as f64 / s.max(1e-12) / 1e6);
     out.counter("rays", n)
