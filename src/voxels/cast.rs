@@ -10,8 +10,10 @@
 //! sizes are floats in [1, 2) whose bit patterns give the traversal its
 //! integer structure: PUSH writes (parent slot, t_max) at index `scale` of
 //! a 23-entry stack, ADVANCE steps `pos` by the voxel size, POP finds the new
-//! scale as the highest bit in which old and new positions differ (the
-//! WGSL twin uses `firstLeadingBit`) and rounds `pos` by shifting its bits.
+//! scale as the highest bit in which old and new positions differ
+//! (`leading_zeros` here where ESVO converts the bits to float; WGSL's
+//! `firstLeadingBit` for the GPU twin of a later issue) and rounds `pos` by
+//! shifting its bits.
 //! Voxel size at scale s is `2^(s - 23)`, so depth `l` is scale `23 - l`;
 //! positions are exact only while voxels are at least `2^-22` wide: depth
 //! at most [`super::shape::MAX_DEPTH`] = 22.
@@ -157,7 +159,7 @@ fn max3<F: Real>(a: [F; 3]) -> F {
 
 /// Casts the ray `o + t d`, t in `[near, far]`, through the octree `nodes`
 /// (layout of [`super::octree`]) of depth `depth`. Per-axis loops index
-/// arrays as the WGSL twin will.
+/// arrays as a WGSL kernel would.
 #[allow(clippy::needless_range_loop)]
 pub fn cast<F: CastReal>(
     nodes: &[u32],

@@ -402,6 +402,29 @@ fn sphere_bounds(ctx: &OpCtx) -> Result<Outputs> {
     }
 }
 
+/// CPU seconds this process has used (user + system, all threads), from
+/// /proc/self/stat (USER_HZ = 100); `None` off Linux. Throughput per CPU
+/// second is robust to other jobs sharing the machine, unlike wall time.
+fn process_cpu_s() -> Option<f64> {
+    let s = std::fs::read_to_string("/proc/self/stat").ok()?;
+    let rest = &s[s.rfind(')')? + 2..];
+    let f: Vec<&str> = rest.split_whitespace().collect();
+    let ticks = f.get(11)?.parse::<u64>().ok()? + f.get(12)?.parse::<u64>().ok()?;
+    Some(ticks as f64 / 100.0)
+}
+
+/// Runs `f`, returning its result, wall seconds and CPU seconds (0 when unknown).
+fn timed<R>(f: impl FnOnce() -> R) -> (R, f64, f64) {
+    let (c0, t0) = (process_cpu_s(), Instant::now());
+    let r = f();
+    let wall = t0.elapsed().as_secs_f64();
+    let cpu = match (c0, process_cpu_s()) {
+        (Some(a), Some(b)) => b - a,
+        _ => 0.0,
+    };
+    (r, wall, cpu)
+}
+
 fn bench_in<F: CastReal>(ctx: &OpCtx, sc: &VoxelScene, tree: &Octree) -> Result<Outputs> {
     let count: u32 = ctx.param_or("count", 1 << 20)?;
     let size: u32 = ctx.param_or("size", 1024)?;
@@ -428,24 +451,33 @@ fn bench_in<F: CastReal>(ctx: &OpCtx, sc: &VoxelScene, tree: &Octree) -> Result<
             lod: sc.lod,
             max_iter: sc.max_iter,
         };
-        let t0 = Instant::now();
-        let h = cast_all::<F>(tree, &b.o, &b.d, &p);
-        let s = t0.elapsed().as_secs_f64();
-        let rate = b.o.len() as f64 / s.max(1e-12) / 1e6;
+        let (h, wall, cpu) = timed(|| cast_all::<F>(tree, &b.o, &b.d, &p));
+        let n = b.o.len() as f64;
+        let rate = n / wall.max(1e-12) / 1e6;
         out.metric(&format!("{name}_mrays_per_s"), rate);
         out.metric(&format!("{name}_mrays_per_s_per_core"), rate / threads);
         out.metric(
-            &format!("{name}_hit_fraction"),
-            h.hit.iter().map(|&x| x as f64).sum::<f64>() / b.o.len() as f64,
+            &format!("{name}_mrays_per_cpu_s"),
+            if cpu > 0.0 { n / cpu / 1e6 } else { 0.0 },
+        );
+        let hits = h.hit.iter().map(|&x| x as f64).sum::<f64>();
+        out.metric(&format!("{name}_hit_fraction"), hits / n);
+        out.metric(
+            &format!("{name}_mean_iters"),
+            h.iters.iter().map(|&x| x as f64).sum::<f64>() / n,
         );
         // The referee on every stride-th ray of the same set.
         let (o, d) = widen(b);
         let (o, d): (Vec<_>, Vec<_>) = o.into_iter().zip(d).step_by(stride).unzip();
-        let t0 = Instant::now();
-        let r = referee_all(&sc.shape, sc.depth, &o, &d, b.near, b.far, 0.0);
-        let s = t0.elapsed().as_secs_f64();
-        let rrate = r.tie.len() as f64 / s.max(1e-12) / 1e6;
+        let (r, rwall, rcpu) =
+            timed(|| referee_all(&sc.shape, sc.depth, &o, &d, b.near, b.far, 0.0));
+        let m = r.tie.len() as f64;
+        let rrate = m / rwall.max(1e-12) / 1e6;
         out.metric(&format!("referee_{name}_mrays_per_s"), rrate);
+        out.metric(
+            &format!("referee_{name}_mrays_per_cpu_s"),
+            if rcpu > 0.0 { m / rcpu / 1e6 } else { 0.0 },
+        );
         out.metric(
             &format!("{name}_speedup_vs_referee"),
             rate / rrate.max(1e-12),
@@ -457,11 +489,14 @@ fn bench_in<F: CastReal>(ctx: &OpCtx, sc: &VoxelScene, tree: &Octree) -> Result<
 fn bench(ctx: &OpCtx) -> Result<Outputs> {
     ctx.cpu_only()?;
     let sc = load(ctx)?;
-    let tree = build(&sc.shape, sc.depth, &ctx.budget)?;
-    match ctx.precision {
+    let (tree, _, build_cpu) = timed(|| build(&sc.shape, sc.depth, &ctx.budget));
+    let tree = tree?;
+    let mut out = match ctx.precision {
         Precision::F32 => bench_in::<f32>(ctx, &sc, &tree),
         Precision::F64 => bench_in::<f64>(ctx, &sc, &tree),
-    }
+    }?;
+    out.metric("build_cpu_s", build_cpu);
+    Ok(out)
 }
 
 #[cfg(test)]
