@@ -10,6 +10,7 @@ pub mod pathtrace;
 pub mod rays;
 pub mod volume;
 pub mod transport;
+pub mod voxels;
 
 use std::path::{Path, PathBuf};
 
@@ -169,6 +170,7 @@ pub fn validate(doc: &SceneDoc) -> Result<()> {
         "volume" => volume::load(doc).map(drop),
         "pathtrace" => pathtrace::parse(doc).map(drop),
         "transport" => transport::parse(doc).map(drop),
+        "voxels" => voxels::parse(doc).map(drop),
         other => Err(Error::invalid(
             doc.at(),
             format!(
