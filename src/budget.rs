@@ -20,8 +20,12 @@ impl MemBudget {
     /// The machine's available memory (`MemAvailable` in /proc/meminfo) less
     /// a quarter for everything else; 4 GiB where that cannot be read.
     pub fn from_machine() -> Self {
-        let avail = std::fs::read_to_string("/proc/meminfo").ok().and_then(|s| parse_mem_available(&s));
-        MemBudget { bytes: avail.map_or(4 << 30, |b| b / 4 * 3) }
+        let avail = std::fs::read_to_string("/proc/meminfo")
+            .ok()
+            .and_then(|s| parse_mem_available(&s));
+        MemBudget {
+            bytes: avail.map_or(4 << 30, |b| b / 4 * 3),
+        }
     }
 
     /// Refuses `needed` bytes for `what` when over budget. `needed` is
@@ -29,8 +33,16 @@ impl MemBudget {
     pub fn check(&self, what: &str, needed: Option<u64>) -> Result<()> {
         match needed {
             Some(n) if n <= self.bytes => Ok(()),
-            Some(n) => Err(Error::OutOfMemory { what: what.to_string(), needed: n, budget: self.bytes }),
-            None => Err(Error::OutOfMemory { what: what.to_string(), needed: u64::MAX, budget: self.bytes }),
+            Some(n) => Err(Error::OutOfMemory {
+                what: what.to_string(),
+                needed: n,
+                budget: self.bytes,
+            }),
+            None => Err(Error::OutOfMemory {
+                what: what.to_string(),
+                needed: u64::MAX,
+                budget: self.bytes,
+            }),
         }
     }
 }
@@ -57,8 +69,12 @@ pub fn parse_size(s: &str) -> std::result::Result<u64, String> {
         Some('T' | 't') => (&s[..s.len() - 1], 1 << 40),
         _ => (s, 1),
     };
-    let n: u64 = num.trim().parse().map_err(|_| format!("not a size: {s:?} (use e.g. 512M or 2G)"))?;
-    n.checked_mul(mult).ok_or_else(|| format!("size {s:?} overflows 64 bits"))
+    let n: u64 = num
+        .trim()
+        .parse()
+        .map_err(|_| format!("not a size: {s:?} (use e.g. 512M or 2G)"))?;
+    n.checked_mul(mult)
+        .ok_or_else(|| format!("size {s:?} overflows 64 bits"))
 }
 
 #[cfg(test)]
@@ -76,7 +92,10 @@ mod tests {
 
     #[test]
     fn meminfo_and_sizes_parse() {
-        assert_eq!(parse_mem_available("MemTotal: 10 kB\nMemAvailable:    2048 kB\n"), Some(2048 * 1024));
+        assert_eq!(
+            parse_mem_available("MemTotal: 10 kB\nMemAvailable:    2048 kB\n"),
+            Some(2048 * 1024)
+        );
         assert_eq!(parse_size("2G"), Ok(2 << 30));
         assert_eq!(parse_size("17"), Ok(17));
         assert!(parse_size("lots").is_err());

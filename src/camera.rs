@@ -27,14 +27,22 @@ pub enum Camera {
     Pinhole { k: Intrinsics, c2w: Mat34 },
     /// Parallel rays along camera -Z from `(x, y, 0)`,
     /// `x = -hw + 2 hw px / W`, `y = hh - 2 hh py / H`.
-    Orthographic { c2w: Mat34, half_width: f64, half_height: f64 },
+    Orthographic {
+        c2w: Mat34,
+        half_width: f64,
+        half_height: f64,
+    },
 }
 
 fn sub(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
     [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
 }
 fn cross(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
-    [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
+    [
+        a[1] * b[2] - a[2] * b[1],
+        a[2] * b[0] - a[0] * b[2],
+        a[0] * b[1] - a[1] * b[0],
+    ]
 }
 fn norm(a: [f64; 3]) -> f64 {
     (a[0] * a[0] + a[1] * a[1] + a[2] * a[2]).sqrt()
@@ -49,23 +57,36 @@ fn scale(a: [f64; 3], s: f64) -> [f64; 3] {
 pub fn look_at_c2w(position: [f64; 3], target: [f64; 3], up: [f64; 3]) -> Result<Mat34> {
     let all = position.iter().chain(&target).chain(&up);
     if all.clone().any(|v| !v.is_finite()) {
-        return Err(Error::invalid("camera", "position, target and up must be finite"));
+        return Err(Error::invalid(
+            "camera",
+            "position, target and up must be finite",
+        ));
     }
     let fwd = sub(target, position);
     let fl = norm(fwd);
     if fl == 0.0 {
-        return Err(Error::invalid("camera", "target equals position: no viewing direction"));
+        return Err(Error::invalid(
+            "camera",
+            "target equals position: no viewing direction",
+        ));
     }
     let f = scale(fwd, 1.0 / fl);
     let r = cross(f, up);
     let rl = norm(r);
     if rl <= 1e-12 * norm(up).max(1e-300) {
-        return Err(Error::invalid("camera.up", "up is zero or parallel to the viewing direction"));
+        return Err(Error::invalid(
+            "camera.up",
+            "up is zero or parallel to the viewing direction",
+        ));
     }
     let x = scale(r, 1.0 / rl);
     let y = cross(x, f);
     let z = scale(f, -1.0);
-    Ok([[x[0], y[0], z[0], position[0]], [x[1], y[1], z[1], position[1]], [x[2], y[2], z[2], position[2]]])
+    Ok([
+        [x[0], y[0], z[0], position[0]],
+        [x[1], y[1], z[1], position[1]],
+        [x[2], y[2], z[2], position[2]],
+    ])
 }
 
 impl Camera {
@@ -79,11 +100,22 @@ impl Camera {
         height: u32,
     ) -> Result<Camera> {
         if !(fov_y_deg > 0.0 && fov_y_deg < 180.0) {
-            return Err(Error::invalid("camera.fov_y", format!("{fov_y_deg} is not in (0, 180) degrees")));
+            return Err(Error::invalid(
+                "camera.fov_y",
+                format!("{fov_y_deg} is not in (0, 180) degrees"),
+            ));
         }
         let f = (height as f64 / 2.0) / (fov_y_deg.to_radians() / 2.0).tan();
-        let k = Intrinsics { fx: f, fy: f, cx: width as f64 / 2.0, cy: height as f64 / 2.0 };
-        Ok(Camera::Pinhole { k, c2w: look_at_c2w(position, target, up)? })
+        let k = Intrinsics {
+            fx: f,
+            fy: f,
+            cx: width as f64 / 2.0,
+            cy: height as f64 / 2.0,
+        };
+        Ok(Camera::Pinhole {
+            k,
+            c2w: look_at_c2w(position, target, up)?,
+        })
     }
 
     /// Orthographic camera with the same C2W as `look_at`.
@@ -94,10 +126,21 @@ impl Camera {
         half_width: f64,
         half_height: f64,
     ) -> Result<Camera> {
-        if !(half_width > 0.0 && half_height > 0.0 && half_width.is_finite() && half_height.is_finite()) {
-            return Err(Error::invalid("camera.half_width/half_height", "must be finite and positive"));
+        if !(half_width > 0.0
+            && half_height > 0.0
+            && half_width.is_finite()
+            && half_height.is_finite())
+        {
+            return Err(Error::invalid(
+                "camera.half_width/half_height",
+                "must be finite and positive",
+            ));
         }
-        Ok(Camera::Orthographic { c2w: look_at_c2w(position, target, up)?, half_width, half_height })
+        Ok(Camera::Orthographic {
+            c2w: look_at_c2w(position, target, up)?,
+            half_width,
+            half_height,
+        })
     }
 
     pub fn c2w(&self) -> &Mat34 {
@@ -112,9 +155,14 @@ impl Camera {
             return Err(Error::invalid("camera.c2w", "every entry must be finite"));
         }
         if let Camera::Pinhole { k, .. } = self {
-            let ok = [k.fx, k.fy, k.cx, k.cy].iter().all(|v| v.is_finite()) && k.fx != 0.0 && k.fy != 0.0;
+            let ok = [k.fx, k.fy, k.cx, k.cy].iter().all(|v| v.is_finite())
+                && k.fx != 0.0
+                && k.fy != 0.0;
             if !ok {
-                return Err(Error::invalid("camera.k", "fx, fy must be non-zero and every entry finite"));
+                return Err(Error::invalid(
+                    "camera.k",
+                    "fx, fy must be non-zero and every entry finite",
+                ));
             }
         }
         Ok(())
@@ -124,13 +172,24 @@ impl Camera {
     pub fn to_real<F: Real>(&self, width: u32, height: u32) -> RealCamera<F> {
         let c = self.c2w();
         let m = |r: usize, col: usize| F::of(c[r][col]);
-        let rot = [[m(0, 0), m(0, 1), m(0, 2)], [m(1, 0), m(1, 1), m(1, 2)], [m(2, 0), m(2, 1), m(2, 2)]];
+        let rot = [
+            [m(0, 0), m(0, 1), m(0, 2)],
+            [m(1, 0), m(1, 1), m(1, 2)],
+            [m(2, 0), m(2, 1), m(2, 2)],
+        ];
         let t = [m(0, 3), m(1, 3), m(2, 3)];
         let model = match self {
-            Camera::Pinhole { k, .. } => {
-                RealModel::Pinhole { fx: F::of(k.fx), fy: F::of(k.fy), cx: F::of(k.cx), cy: F::of(k.cy) }
-            }
-            Camera::Orthographic { half_width, half_height, .. } => RealModel::Ortho {
+            Camera::Pinhole { k, .. } => RealModel::Pinhole {
+                fx: F::of(k.fx),
+                fy: F::of(k.fy),
+                cx: F::of(k.cx),
+                cy: F::of(k.cy),
+            },
+            Camera::Orthographic {
+                half_width,
+                half_height,
+                ..
+            } => RealModel::Ortho {
                 hw: F::of(*half_width),
                 hh: F::of(*half_height),
                 w: F::of(width as f64),
@@ -196,7 +255,11 @@ mod tests {
     #[test]
     fn look_at_down_minus_z_is_identity_rotation() {
         let c = look_at_c2w([0.0, 0.0, 3.0], [0.0; 3], [0.0, 1.0, 0.0]).unwrap();
-        let expect = [[1.0, 0.0, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 1.0, 3.0]];
+        let expect = [
+            [1.0, 0.0, 0.0, 0.0],
+            [0.0, 1.0, 0.0, 0.0],
+            [0.0, 0.0, 1.0, 3.0],
+        ];
         for r in 0..3 {
             for k in 0..4 {
                 assert!((c[r][k] - expect[r][k]).abs() < 1e-15, "{c:?}");
@@ -206,7 +269,8 @@ mod tests {
 
     #[test]
     fn centre_pixel_looks_at_target_and_corners_span_the_fov() {
-        let cam = Camera::pinhole_look_at([0.0, 0.0, 3.0], [0.0; 3], [0.0, 1.0, 0.0], 40.0, 64, 64).unwrap();
+        let cam = Camera::pinhole_look_at([0.0, 0.0, 3.0], [0.0; 3], [0.0, 1.0, 0.0], 40.0, 64, 64)
+            .unwrap();
         let rc = cam.to_real::<f64>(64, 64);
         let (o, d) = rc.ray(32.0, 32.0);
         assert_eq!(o, [0.0, 0.0, 3.0]);
@@ -218,11 +282,15 @@ mod tests {
 
     #[test]
     fn ortho_maps_pixel_edges_to_half_extents() {
-        let cam = Camera::ortho_look_at([3.0, 0.0, 0.0], [0.0; 3], [0.0, 1.0, 0.0], 1.0, 1.0).unwrap();
+        let cam =
+            Camera::ortho_look_at([3.0, 0.0, 0.0], [0.0; 3], [0.0, 1.0, 0.0], 1.0, 1.0).unwrap();
         let rc = cam.to_real::<f64>(64, 64);
         let (o, d) = rc.ray(0.0, 0.0);
         // Looking along -X with +Y up: camera +X (right) is world -Z.
-        assert!((o[0] - 3.0).abs() < 1e-15 && (o[1] - 1.0).abs() < 1e-15 && (o[2] - 1.0).abs() < 1e-15, "{o:?}");
+        assert!(
+            (o[0] - 3.0).abs() < 1e-15 && (o[1] - 1.0).abs() < 1e-15 && (o[2] - 1.0).abs() < 1e-15,
+            "{o:?}"
+        );
         assert!((d[0] + 1.0).abs() < 1e-15);
     }
 
@@ -230,6 +298,8 @@ mod tests {
     fn degenerate_cameras_are_refused() {
         assert!(look_at_c2w([0.0; 3], [0.0; 3], [0.0, 1.0, 0.0]).is_err());
         assert!(look_at_c2w([0.0, 3.0, 0.0], [0.0; 3], [0.0, 1.0, 0.0]).is_err());
-        assert!(Camera::pinhole_look_at([0.0, 0.0, 3.0], [0.0; 3], [0.0, 1.0, 0.0], 0.0, 4, 4).is_err());
+        assert!(
+            Camera::pinhole_look_at([0.0, 0.0, 3.0], [0.0; 3], [0.0, 1.0, 0.0], 0.0, 4, 4).is_err()
+        );
     }
 }

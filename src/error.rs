@@ -17,7 +17,11 @@ pub enum Error {
     /// A plan would need more memory than the budget allows; refused before
     /// allocating (Linux overcommit makes failed allocations unreliable).
     #[error("out of memory: {what} needs {needed} bytes, budget is {budget} bytes")]
-    OutOfMemory { what: String, needed: u64, budget: u64 },
+    OutOfMemory {
+        what: String,
+        needed: u64,
+        budget: u64,
+    },
     /// The GPU driver or runtime failed.
     #[error("GPU failure: {0}")]
     Gpu(String),
@@ -36,11 +40,17 @@ pub type Result<T> = std::result::Result<T, Error>;
 impl Error {
     /// Shorthand for [`Error::InvalidInput`].
     pub fn invalid(at: impl Into<String>, what: impl Into<String>) -> Self {
-        Error::InvalidInput { at: at.into(), what: what.into() }
+        Error::InvalidInput {
+            at: at.into(),
+            what: what.into(),
+        }
     }
 
     /// Shorthand for [`Error::Io`].
     pub fn io(path: impl Into<PathBuf>, source: std::io::Error) -> Self {
-        Error::Io { path: path.into(), source }
+        Error::Io {
+            path: path.into(),
+            source,
+        }
     }
 }

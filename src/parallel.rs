@@ -5,24 +5,42 @@
 use rayon::prelude::*;
 
 /// Fills `out[i] = f(i)` in parallel over chunks of `grain` items.
-pub fn par_map_into<T: Send>(label: &'static str, out: &mut [T], grain: usize, f: impl Fn(usize) -> T + Sync) {
+pub fn par_map_into<T: Send>(
+    label: &'static str,
+    out: &mut [T],
+    grain: usize,
+    f: impl Fn(usize) -> T + Sync,
+) {
     let _span = tracing::debug_span!("par_for", label, n = out.len()).entered();
-    out.par_chunks_mut(grain.max(1)).enumerate().for_each(|(c, chunk)| {
-        let base = c * grain.max(1);
-        for (k, slot) in chunk.iter_mut().enumerate() {
-            *slot = f(base + k);
-        }
-    });
+    out.par_chunks_mut(grain.max(1))
+        .enumerate()
+        .for_each(|(c, chunk)| {
+            let base = c * grain.max(1);
+            for (k, slot) in chunk.iter_mut().enumerate() {
+                *slot = f(base + k);
+            }
+        });
 }
 
 /// Runs `f(chunk_index, chunk)` over `grain`-sized chunks of `out` in parallel.
-pub fn par_chunks<T: Send>(label: &'static str, out: &mut [T], grain: usize, f: impl Fn(usize, &mut [T]) + Sync) {
+pub fn par_chunks<T: Send>(
+    label: &'static str,
+    out: &mut [T],
+    grain: usize,
+    f: impl Fn(usize, &mut [T]) + Sync,
+) {
     let _span = tracing::debug_span!("par_chunks", label, n = out.len()).entered();
-    out.par_chunks_mut(grain.max(1)).enumerate().for_each(|(c, chunk)| f(c, chunk));
+    out.par_chunks_mut(grain.max(1))
+        .enumerate()
+        .for_each(|(c, chunk)| f(c, chunk));
 }
 
 /// Maps `0..n` to a vector in parallel (index order is kept).
-pub fn par_collect<T: Send>(label: &'static str, n: usize, f: impl Fn(usize) -> T + Sync + Send) -> Vec<T> {
+pub fn par_collect<T: Send>(
+    label: &'static str,
+    n: usize,
+    f: impl Fn(usize) -> T + Sync + Send,
+) -> Vec<T> {
     let _span = tracing::debug_span!("par_collect", label, n).entered();
     (0..n).into_par_iter().map(f).collect()
 }

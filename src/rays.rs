@@ -22,12 +22,18 @@ pub struct Aabb {
 
 impl Aabb {
     /// The default world box [-1, 1]^3.
-    pub const UNIT: Aabb = Aabb { min: [-1.0; 3], max: [1.0; 3] };
+    pub const UNIT: Aabb = Aabb {
+        min: [-1.0; 3],
+        max: [1.0; 3],
+    };
 
     pub fn validate(&self) -> Result<()> {
         for a in 0..3 {
             if !(self.min[a].is_finite() && self.max[a].is_finite() && self.min[a] < self.max[a]) {
-                return Err(Error::invalid("aabb", format!("axis {a}: need finite min < max, got {:?}", self)));
+                return Err(Error::invalid(
+                    "aabb",
+                    format!("axis {a}: need finite min < max, got {:?}", self),
+                ));
             }
         }
         Ok(())
@@ -69,12 +75,25 @@ pub const MAX_SIDE: u32 = 1 << 16;
 impl RayGen {
     /// A plain generator: whole image, box [-1, 1]^3, near 0, far infinity, no jitter.
     pub fn new(width: u32, height: u32) -> Self {
-        RayGen { width, height, roi: None, aabb: Aabb::UNIT, near: 0.0, far: f64::INFINITY, jitter: None }
+        RayGen {
+            width,
+            height,
+            roi: None,
+            aabb: Aabb::UNIT,
+            near: 0.0,
+            far: f64::INFINITY,
+            jitter: None,
+        }
     }
 
     /// The pixel rectangle rays are made for.
     pub fn region(&self) -> Roi {
-        self.roi.unwrap_or(Roi { x: 0, y: 0, width: self.width, height: self.height })
+        self.roi.unwrap_or(Roi {
+            x: 0,
+            y: 0,
+            width: self.width,
+            height: self.height,
+        })
     }
 
     pub fn validate(&self) -> Result<()> {
@@ -89,12 +108,21 @@ impl RayGen {
                 && r.x.checked_add(r.width).is_some_and(|e| e <= self.width)
                 && r.y.checked_add(r.height).is_some_and(|e| e <= self.height);
             if !inside {
-                return Err(Error::invalid("roi", format!("{r:?} is empty or not inside {}x{}", self.width, self.height)));
+                return Err(Error::invalid(
+                    "roi",
+                    format!(
+                        "{r:?} is empty or not inside {}x{}",
+                        self.width, self.height
+                    ),
+                ));
             }
         }
         self.aabb.validate()?;
         if !(self.near >= 0.0 && self.near.is_finite() && self.far > self.near) {
-            return Err(Error::invalid("near/far", format!("need 0 <= near < far, got {} and {}", self.near, self.far)));
+            return Err(Error::invalid(
+                "near/far",
+                format!("need 0 <= near < far, got {} and {}", self.near, self.far),
+            ));
         }
         Ok(())
     }
@@ -145,22 +173,37 @@ impl<F: Real> Rays<F> {
     pub fn from_tensor(t: &Tensor, at: &str) -> Result<Rays<F>> {
         let s = t.shape();
         if !t.is_float() || s.len() != 2 || s[1] != 9 {
-            return Err(Error::invalid(at, format!("rays must be float (N, 9), got {} {:?}", t.dtype(), s)));
+            return Err(Error::invalid(
+                at,
+                format!("rays must be float (N, 9), got {} {:?}", t.dtype(), s),
+            ));
         }
         let v = t.to_f64_vec();
         let n = s[0];
-        let mut r = Rays { o: vec![], d: vec![], t0: vec![], t1: vec![], pixel: vec![] };
+        let mut r = Rays {
+            o: vec![],
+            d: vec![],
+            t0: vec![],
+            t1: vec![],
+            pixel: vec![],
+        };
         for i in 0..n {
             let row = &v[i * 9..i * 9 + 9];
             if row.iter().any(|x| !x.is_finite()) {
-                return Err(Error::invalid(at, format!("ray {i} has a non-finite value")));
+                return Err(Error::invalid(
+                    at,
+                    format!("ray {i} has a non-finite value"),
+                ));
             }
             let dl = (row[3] * row[3] + row[4] * row[4] + row[5] * row[5]).sqrt();
             if (dl - 1.0).abs() > 1e-6 {
                 return Err(Error::invalid(at, format!("ray {i}: |d| = {dl}, not 1")));
             }
             if row[8] < 0.0 || row[8] > u32::MAX as f64 || row[8].fract() != 0.0 {
-                return Err(Error::invalid(at, format!("ray {i}: pixel {} is not a u32", row[8])));
+                return Err(Error::invalid(
+                    at,
+                    format!("ray {i}: pixel {} is not a u32", row[8]),
+                ));
             }
             r.o.push([F::of(row[0]), F::of(row[1]), F::of(row[2])]);
             r.d.push([F::of(row[3]), F::of(row[4]), F::of(row[5])]);
@@ -176,7 +219,14 @@ impl<F: Real> Rays<F> {
 /// Slab method with the axis-parallel case handled explicitly (no 0 * inf).
 /// Returns `(t0, t1)`; on a miss `t0 = t1 = near`.
 #[inline]
-pub fn clip_aabb<F: Real>(o: [F; 3], d: [F; 3], bmin: [F; 3], bmax: [F; 3], near: F, far: F) -> (F, F) {
+pub fn clip_aabb<F: Real>(
+    o: [F; 3],
+    d: [F; 3],
+    bmin: [F; 3],
+    bmax: [F; 3],
+    near: F,
+    far: F,
+) -> (F, F) {
     let mut lo = near;
     let mut hi = far;
     for a in 0..3 {
@@ -217,7 +267,10 @@ pub fn f_ray<F: Real>(cam: &Camera, gen: &RayGen, budget: &MemBudget) -> Result<
         let v = roi.y + (i as u32 / rw);
         let pixel = v * w + u;
         let (jx, jy) = match gen.jitter {
-            Some(j) => (rand_f64(j.seed, pixel, j.sample, 0), rand_f64(j.seed, pixel, j.sample, 1)),
+            Some(j) => (
+                rand_f64(j.seed, pixel, j.sample, 0),
+                rand_f64(j.seed, pixel, j.sample, 1),
+            ),
             None => (0.5, 0.5),
         };
         let (o, d) = rc.ray(F::of(u as f64 + jx), F::of(v as f64 + jy));
@@ -249,21 +302,43 @@ mod tests {
     #[test]
     fn axis_parallel_rays_on_a_face_hit_and_beside_it_miss() {
         let (bmin, bmax) = ([-1.0f64; 3], [1.0f64; 3]);
-        let (t0, t1) = clip_aabb([1.0, 0.0, 3.0], [0.0, 0.0, -1.0], bmin, bmax, 0.0, f64::INFINITY);
+        let (t0, t1) = clip_aabb(
+            [1.0, 0.0, 3.0],
+            [0.0, 0.0, -1.0],
+            bmin,
+            bmax,
+            0.0,
+            f64::INFINITY,
+        );
         assert_eq!((t0, t1), (2.0, 4.0));
-        let (t0, t1) = clip_aabb([1.0 + 1e-12, 0.0, 3.0], [0.0, 0.0, -1.0], bmin, bmax, 0.0, f64::INFINITY);
+        let (t0, t1) = clip_aabb(
+            [1.0 + 1e-12, 0.0, 3.0],
+            [0.0, 0.0, -1.0],
+            bmin,
+            bmax,
+            0.0,
+            f64::INFINITY,
+        );
         assert!(t1 <= t0);
     }
 
     #[test]
     fn origin_inside_starts_at_near() {
-        let (t0, t1) = clip_aabb([0.0f64; 3], [1.0, 0.0, 0.0], [-1.0; 3], [1.0; 3], 0.25, f64::INFINITY);
+        let (t0, t1) = clip_aabb(
+            [0.0f64; 3],
+            [1.0, 0.0, 0.0],
+            [-1.0; 3],
+            [1.0; 3],
+            0.25,
+            f64::INFINITY,
+        );
         assert_eq!((t0, t1), (0.25, 1.0));
     }
 
     #[test]
     fn zero_and_oversized_images_are_refused_before_allocating() {
-        let cam = Camera::pinhole_look_at([0.0, 0.0, 3.0], [0.0; 3], [0.0, 1.0, 0.0], 40.0, 4, 4).unwrap();
+        let cam = Camera::pinhole_look_at([0.0, 0.0, 3.0], [0.0; 3], [0.0, 1.0, 0.0], 40.0, 4, 4)
+            .unwrap();
         let b = MemBudget::fixed(1 << 20);
         assert!(f_ray::<f32>(&cam, &RayGen::new(0, 4), &b).is_err());
         let e = f_ray::<f32>(&cam, &RayGen::new(MAX_SIDE, MAX_SIDE), &b).unwrap_err();
@@ -272,16 +347,23 @@ mod tests {
 
     #[test]
     fn roi_pixels_index_the_full_image() {
-        let cam = Camera::pinhole_look_at([0.0, 0.0, 3.0], [0.0; 3], [0.0, 1.0, 0.0], 40.0, 8, 6).unwrap();
+        let cam = Camera::pinhole_look_at([0.0, 0.0, 3.0], [0.0; 3], [0.0, 1.0, 0.0], 40.0, 8, 6)
+            .unwrap();
         let mut g = RayGen::new(8, 6);
-        g.roi = Some(Roi { x: 2, y: 1, width: 3, height: 2 });
+        g.roi = Some(Roi {
+            x: 2,
+            y: 1,
+            width: 3,
+            height: 2,
+        });
         let r = f_ray::<f64>(&cam, &g, &MemBudget::fixed(1 << 20)).unwrap();
         assert_eq!(r.pixel, vec![10, 11, 12, 18, 19, 20]);
     }
 
     #[test]
     fn rays_survive_the_dump_format() {
-        let cam = Camera::pinhole_look_at([0.0, 0.0, 3.0], [0.0; 3], [0.0, 1.0, 0.0], 40.0, 4, 4).unwrap();
+        let cam = Camera::pinhole_look_at([0.0, 0.0, 3.0], [0.0; 3], [0.0, 1.0, 0.0], 40.0, 4, 4)
+            .unwrap();
         let r = f_ray::<f64>(&cam, &RayGen::new(4, 4), &MemBudget::fixed(1 << 20)).unwrap();
         let back = Rays::<f64>::from_tensor(&r.to_tensor(), "x").unwrap();
         assert_eq!(back, r);

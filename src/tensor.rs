@@ -5,7 +5,7 @@ use std::collections::BTreeMap;
 use std::path::Path;
 
 use ndarray::{ArrayD, IxDyn};
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 
 use crate::error::{Error, Result};
 use crate::real::Real;
@@ -42,7 +42,12 @@ impl Tensor {
         let n = v.len();
         ArrayD::from_shape_vec(IxDyn(shape), v)
             .map(Into::into)
-            .map_err(|e| Error::invalid("tensor", format!("{n} values do not fit shape {shape:?}: {e}")))
+            .map_err(|e| {
+                Error::invalid(
+                    "tensor",
+                    format!("{n} values do not fit shape {shape:?}: {e}"),
+                )
+            })
     }
 
     /// A tensor of render floats (f32 or f64 as `F`) from a flat vector.
@@ -50,7 +55,12 @@ impl Tensor {
         let n = v.len();
         ArrayD::from_shape_vec(IxDyn(shape), v)
             .map(F::tensor)
-            .map_err(|e| Error::invalid("tensor", format!("{n} values do not fit shape {shape:?}: {e}")))
+            .map_err(|e| {
+                Error::invalid(
+                    "tensor",
+                    format!("{n} values do not fit shape {shape:?}: {e}"),
+                )
+            })
     }
 
     /// A tensor of shape `shape ++ [3]` from 3-vectors.
@@ -127,13 +137,21 @@ impl Tensor {
     /// Writes the tensor as a `.npy` file.
     pub fn write_npy(&self, path: &Path) -> Result<()> {
         let r = each!(self, a => ndarray_npy::write_npy(path, a));
-        r.map_err(|e| Error::invalid(path.display().to_string(), format!("cannot write .npy: {e}")))
+        r.map_err(|e| {
+            Error::invalid(
+                path.display().to_string(),
+                format!("cannot write .npy: {e}"),
+            )
+        })
     }
 
     /// Reads a `.npy` file of any supported dtype.
     pub fn read_npy(path: &Path) -> Result<Tensor> {
         if !path.is_file() {
-            return Err(Error::io(path, std::io::Error::new(std::io::ErrorKind::NotFound, "no such file")));
+            return Err(Error::io(
+                path,
+                std::io::Error::new(std::io::ErrorKind::NotFound, "no such file"),
+            ));
         }
         macro_rules! attempt {
             ($t:ty) => {
@@ -141,7 +159,10 @@ impl Tensor {
                     Ok(a) => return Ok(a.into()),
                     Err(ndarray_npy::ReadNpyError::WrongDescriptor(_)) => {}
                     Err(e) => {
-                        return Err(Error::invalid(path.display().to_string(), format!("not a readable .npy file: {e}")))
+                        return Err(Error::invalid(
+                            path.display().to_string(),
+                            format!("not a readable .npy file: {e}"),
+                        ))
                     }
                 }
             };
@@ -159,16 +180,33 @@ impl Tensor {
 
     /// Reads a `.npy` file and checks its dtype and shape (`None` in `shape`
     /// matches any extent).
-    pub fn read_npy_checked(path: &Path, dtype: &[&str], shape: &[Option<usize>]) -> Result<Tensor> {
+    pub fn read_npy_checked(
+        path: &Path,
+        dtype: &[&str],
+        shape: &[Option<usize>],
+    ) -> Result<Tensor> {
         let t = Tensor::read_npy(path)?;
         let at = path.display().to_string();
         if !dtype.contains(&t.dtype()) {
-            return Err(Error::invalid(at, format!("dtype is {}, expected one of {dtype:?}", t.dtype())));
+            return Err(Error::invalid(
+                at,
+                format!("dtype is {}, expected one of {dtype:?}", t.dtype()),
+            ));
         }
-        let ok = t.shape().len() == shape.len() && t.shape().iter().zip(shape).all(|(&s, e)| e.is_none_or(|e| e == s));
+        let ok = t.shape().len() == shape.len()
+            && t.shape()
+                .iter()
+                .zip(shape)
+                .all(|(&s, e)| e.is_none_or(|e| e == s));
         if !ok {
-            let want: Vec<String> = shape.iter().map(|e| e.map_or("*".into(), |e| e.to_string())).collect();
-            return Err(Error::invalid(at, format!("shape is {:?}, expected ({})", t.shape(), want.join(", "))));
+            let want: Vec<String> = shape
+                .iter()
+                .map(|e| e.map_or("*".into(), |e| e.to_string()))
+                .collect();
+            return Err(Error::invalid(
+                at,
+                format!("shape is {:?}, expected ({})", t.shape(), want.join(", ")),
+            ));
         }
         Ok(t)
     }
@@ -226,15 +264,18 @@ impl Outputs {
 }
 
 /// Shape and dtype of a tensor, for reports.
-#[derive(Clone, Debug, Serialize)]
+#[derive(Clone, Debug, Serialize, Deserialize)]
 pub struct TensorInfo {
-    pub dtype: &'static str,
+    pub dtype: String,
     pub shape: Vec<usize>,
 }
 
 impl From<&Tensor> for TensorInfo {
     fn from(t: &Tensor) -> Self {
-        TensorInfo { dtype: t.dtype(), shape: t.shape().to_vec() }
+        TensorInfo {
+            dtype: t.dtype().to_string(),
+            shape: t.shape().to_vec(),
+        }
     }
 }
 
@@ -247,7 +288,11 @@ mod tests {
         let dir = std::env::temp_dir().join(format!("hp-tensor-{}", std::process::id()));
         std::fs::create_dir_all(&dir).unwrap();
         let cases = vec![
-            Tensor::from_shape_vec(&[2, 3], vec![0.5f32, -1.0, 3.25, f32::MIN_POSITIVE, 0.0, 7.0]).unwrap(),
+            Tensor::from_shape_vec(
+                &[2, 3],
+                vec![0.5f32, -1.0, 3.25, f32::MIN_POSITIVE, 0.0, 7.0],
+            )
+            .unwrap(),
             Tensor::from_shape_vec(&[3], vec![1e-300f64, 2.0, -0.0]).unwrap(),
             Tensor::from_shape_vec(&[2, 2], vec![1i32, -2, 3, 4]).unwrap(),
             Tensor::from_shape_vec(&[1], vec![u32::MAX]).unwrap(),
@@ -260,9 +305,11 @@ mod tests {
             assert_eq!(back.dtype(), t.dtype());
             assert_eq!(back.to_bytes(), t.to_bytes());
         }
-        let err = Tensor::read_npy_checked(&dir.join("t0.npy"), &["float64"], &[None, None]).unwrap_err();
+        let err =
+            Tensor::read_npy_checked(&dir.join("t0.npy"), &["float64"], &[None, None]).unwrap_err();
         assert!(err.to_string().contains("dtype is float32"), "{err}");
-        let err = Tensor::read_npy_checked(&dir.join("t0.npy"), &["float32"], &[Some(3), None]).unwrap_err();
+        let err = Tensor::read_npy_checked(&dir.join("t0.npy"), &["float32"], &[Some(3), None])
+            .unwrap_err();
         assert!(err.to_string().contains("shape is [2, 3]"), "{err}");
         std::fs::remove_dir_all(&dir).ok();
     }

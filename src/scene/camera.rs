@@ -51,15 +51,26 @@ impl CameraSpec {
     /// The camera for a `width` x `height` image.
     pub fn build(&self, width: u32, height: u32) -> Result<Camera> {
         match *self {
-            CameraSpec::Pinhole { position, target, up, fov_y } => {
-                Camera::pinhole_look_at(position, target, up, fov_y, width, height)
-            }
+            CameraSpec::Pinhole {
+                position,
+                target,
+                up,
+                fov_y,
+            } => Camera::pinhole_look_at(position, target, up, fov_y, width, height),
             CameraSpec::PinholeK { k, c2w } => {
                 if k[1] != 0.0 || k[3] != 0.0 || k[6] != 0.0 || k[7] != 0.0 || k[8] != 1.0 {
-                    return Err(Error::invalid("camera.k", "must be [fx 0 cx; 0 fy cy; 0 0 1]"));
+                    return Err(Error::invalid(
+                        "camera.k",
+                        "must be [fx 0 cx; 0 fy cy; 0 0 1]",
+                    ));
                 }
                 let cam = Camera::Pinhole {
-                    k: Intrinsics { fx: k[0], fy: k[4], cx: k[2], cy: k[5] },
+                    k: Intrinsics {
+                        fx: k[0],
+                        fy: k[4],
+                        cx: k[2],
+                        cy: k[5],
+                    },
                     c2w: [
                         [c2w[0], c2w[1], c2w[2], c2w[3]],
                         [c2w[4], c2w[5], c2w[6], c2w[7]],
@@ -69,9 +80,13 @@ impl CameraSpec {
                 cam.validate()?;
                 Ok(cam)
             }
-            CameraSpec::Ortho { position, target, up, half_width, half_height } => {
-                Camera::ortho_look_at(position, target, up, half_width, half_height)
-            }
+            CameraSpec::Ortho {
+                position,
+                target,
+                up,
+                half_width,
+                half_height,
+            } => Camera::ortho_look_at(position, target, up, half_width, half_height),
         }
     }
 }
@@ -82,12 +97,14 @@ mod tests {
 
     #[test]
     fn unknown_camera_keys_and_types_are_rejected() {
-        let bad: std::result::Result<CameraSpec, _> =
-            serde_yaml::from_str("{type: pinhole, position: [0,0,3], target: [0,0,0], fov_y: 40, fovy: 3}");
+        let bad: std::result::Result<CameraSpec, _> = serde_yaml::from_str(
+            "{type: pinhole, position: [0,0,3], target: [0,0,0], fov_y: 40, fovy: 3}",
+        );
         assert!(bad.is_err());
         let bad: std::result::Result<CameraSpec, _> = serde_yaml::from_str("{type: fisheye}");
         assert!(bad.is_err());
-        let ok: CameraSpec = serde_yaml::from_str("{type: ortho, position: [0,0,3], target: [0,0,0]}").unwrap();
+        let ok: CameraSpec =
+            serde_yaml::from_str("{type: ortho, position: [0,0,3], target: [0,0,0]}").unwrap();
         assert!(ok.build(4, 4).is_ok());
     }
 }

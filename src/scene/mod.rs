@@ -32,7 +32,13 @@ pub fn read_yaml(path: &Path) -> Result<Value> {
     let at = path.display().to_string();
     let meta = std::fs::metadata(path).map_err(|e| Error::io(path, e))?;
     if meta.len() > MAX_YAML_BYTES {
-        return Err(Error::invalid(at, format!("{} bytes is over the {MAX_YAML_BYTES}-byte limit", meta.len())));
+        return Err(Error::invalid(
+            at,
+            format!(
+                "{} bytes is over the {MAX_YAML_BYTES}-byte limit",
+                meta.len()
+            ),
+        ));
     }
     let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
     parse_yaml_text(&text, &at)
@@ -55,7 +61,11 @@ pub fn yaml_error(at: &str, e: &serde_yaml::Error) -> Error {
 pub fn from_value<T: DeserializeOwned>(value: &Value, at: &str) -> Result<T> {
     serde_path_to_error::deserialize(value.clone()).map_err(|e| {
         let path = e.path().to_string();
-        let key = if path == "." { String::new() } else { format!(" key `{path}`") };
+        let key = if path == "." {
+            String::new()
+        } else {
+            format!(" key `{path}`")
+        };
         Error::invalid(format!("{at}{key}"), e.into_inner().to_string())
     })
 }
@@ -63,18 +73,35 @@ pub fn from_value<T: DeserializeOwned>(value: &Value, at: &str) -> Result<T> {
 impl SceneDoc {
     /// Loads a scene file and applies `key=value` overrides (see [`apply_set`]).
     pub fn load(path: &Path, sets: &[String]) -> Result<SceneDoc> {
-        let mut value = read_yaml(path)?;
-        if !value.is_mapping() {
-            return Err(Error::invalid(path.display().to_string(), "a scene must be a YAML mapping"));
-        }
+        let mut parsed = Vec::with_capacity(sets.len());
         for s in sets {
             let (k, v) = s
                 .split_once('=')
                 .ok_or_else(|| Error::invalid(format!("--set {s}"), "expected key=value"))?;
-            let v: Value = serde_yaml::from_str(v).map_err(|e| Error::invalid(format!("--set {s}"), e.to_string()))?;
-            apply_set(&mut value, k.trim(), v).map_err(|what| Error::invalid(format!("--set {s}"), what))?;
+            let v: Value = serde_yaml::from_str(v)
+                .map_err(|e| Error::invalid(format!("--set {s}"), e.to_string()))?;
+            parsed.push((k.trim().to_string(), v));
         }
-        Ok(SceneDoc { path: path.to_path_buf(), value })
+        SceneDoc::load_values(path, &parsed)
+    }
+
+    /// Loads a scene file and applies already-parsed overrides in order.
+    pub fn load_values(path: &Path, sets: &[(String, Value)]) -> Result<SceneDoc> {
+        let mut value = read_yaml(path)?;
+        if !value.is_mapping() {
+            return Err(Error::invalid(
+                path.display().to_string(),
+                "a scene must be a YAML mapping",
+            ));
+        }
+        for (k, v) in sets {
+            apply_set(&mut value, k, v.clone())
+                .map_err(|what| Error::invalid(format!("{}: set {k}", path.display()), what))?;
+        }
+        Ok(SceneDoc {
+            path: path.to_path_buf(),
+            value,
+        })
     }
 
     /// The scene's `renderer` key.
@@ -82,7 +109,12 @@ impl SceneDoc {
         self.value
             .get("renderer")
             .and_then(Value::as_str)
-            .ok_or_else(|| Error::invalid(self.at(), "missing `renderer:` (volume, rays, pathtrace, transport, voxels)"))
+            .ok_or_else(|| {
+                Error::invalid(
+                    self.at(),
+                    "missing `renderer:` (volume, rays, pathtrace, transport, voxels)",
+                )
+            })
     }
 
     /// Parses the scene into its typed form (unknown keys are errors).
@@ -93,7 +125,10 @@ impl SceneDoc {
     /// Parses the keys in `keys` as `A` and the remaining keys as `B`, each
     /// rejecting unknown keys: how a scene embeds a shared block (such as
     /// `rays::ViewSpec`) at its top level.
-    pub fn parse_split<A: DeserializeOwned, B: DeserializeOwned>(&self, keys: &[&str]) -> Result<(A, B)> {
+    pub fn parse_split<A: DeserializeOwned, B: DeserializeOwned>(
+        &self,
+        keys: &[&str],
+    ) -> Result<(A, B)> {
         let mut a = serde_yaml::Mapping::new();
         let mut b = serde_yaml::Mapping::new();
         if let Some(m) = self.value.as_mapping() {
@@ -102,7 +137,10 @@ impl SceneDoc {
                 if shared { &mut a } else { &mut b }.insert(k.clone(), v.clone());
             }
         }
-        Ok((from_value(&Value::Mapping(a), &self.at())?, from_value(&Value::Mapping(b), &self.at())?))
+        Ok((
+            from_value(&Value::Mapping(a), &self.at())?,
+            from_value(&Value::Mapping(b), &self.at())?,
+        ))
     }
 
     /// The file name, for errors.
@@ -127,7 +165,9 @@ pub fn validate(doc: &SceneDoc) -> Result<()> {
         "rays" => rays::parse(doc).and_then(|v| v.build()).map(drop),
         other => Err(Error::invalid(
             doc.at(),
-            format!("unknown renderer {other:?} (known: rays, volume, pathtrace, transport, voxels)"),
+            format!(
+                "unknown renderer {other:?} (known: rays, volume, pathtrace, transport, voxels)"
+            ),
         )),
     }
 }
@@ -153,7 +193,10 @@ pub fn apply_set(root: &mut Value, key: &str, v: Value) -> std::result::Result<(
             }
             _ => {
                 let names: Vec<String> = found.iter().map(|p| p.join(".")).collect();
-                return Err(format!("`{key}` is ambiguous: it occurs at {}; use the full path", names.join(", ")));
+                return Err(format!(
+                    "`{key}` is ambiguous: it occurs at {}; use the full path",
+                    names.join(", ")
+                ));
             }
         }
     }
@@ -185,7 +228,9 @@ fn set_path(root: &mut Value, parts: &[&str], v: Value) -> std::result::Result<(
             m.insert(Value::String(p.to_string()), v);
             return Ok(());
         }
-        cur = m.entry(Value::String(p.to_string())).or_insert_with(|| Value::Mapping(Default::default()));
+        cur = m
+            .entry(Value::String(p.to_string()))
+            .or_insert_with(|| Value::Mapping(Default::default()));
     }
     Ok(())
 }
@@ -205,20 +250,29 @@ mod tests {
         apply_set(&mut v, "fov_y", yaml("30")).unwrap();
         apply_set(&mut v, "field.s", yaml("3")).unwrap();
         apply_set(&mut v, "spp", yaml("256")).unwrap();
-        assert_eq!(v, yaml("dt: 0.005\ncamera: {fov_y: 30, up: [0, 1, 0]}\nfield: {s: 3}\nspp: 256\n"));
+        assert_eq!(
+            v,
+            yaml("dt: 0.005\ncamera: {fov_y: 30, up: [0, 1, 0]}\nfield: {s: 3}\nspp: 256\n")
+        );
     }
 
     #[test]
     fn ambiguous_and_malformed_keys_are_errors() {
         let mut v = yaml("a: {s: 1}\nb: {s: 2}\n");
-        assert!(apply_set(&mut v, "s", yaml("3")).unwrap_err().contains("ambiguous"));
+        assert!(apply_set(&mut v, "s", yaml("3"))
+            .unwrap_err()
+            .contains("ambiguous"));
         assert!(apply_set(&mut v, "a..s", yaml("3")).is_err());
-        assert!(apply_set(&mut v, "a.s.t", yaml("3")).unwrap_err().contains("not a mapping"));
+        assert!(apply_set(&mut v, "a.s.t", yaml("3"))
+            .unwrap_err()
+            .contains("not a mapping"));
     }
 
     #[test]
     fn syntax_errors_carry_line_and_column() {
-        let e = parse_yaml_text("a: 1\nb: [1, 2\n", "f.yaml").unwrap_err().to_string();
+        let e = parse_yaml_text("a: 1\nb: [1, 2\n", "f.yaml")
+            .unwrap_err()
+            .to_string();
         assert!(e.starts_with("f.yaml:"), "{e}");
     }
 

@@ -76,11 +76,22 @@ impl ViewSpec {
         let gen = RayGen {
             width: self.width,
             height: self.height,
-            roi: self.roi.map(|r| Roi { x: r.x, y: r.y, width: r.width, height: r.height }),
-            aabb: self.aabb.map_or(Aabb::UNIT, |b| Aabb { min: b.min, max: b.max }),
+            roi: self.roi.map(|r| Roi {
+                x: r.x,
+                y: r.y,
+                width: r.width,
+                height: r.height,
+            }),
+            aabb: self.aabb.map_or(Aabb::UNIT, |b| Aabb {
+                min: b.min,
+                max: b.max,
+            }),
             near: self.near,
             far: self.far,
-            jitter: self.jitter.map(|j| Jitter { seed: j.seed, sample: j.sample }),
+            jitter: self.jitter.map(|j| Jitter {
+                seed: j.seed,
+                sample: j.sample,
+            }),
         };
         gen.validate()?;
         let cam = self.camera.build(self.width, self.height)?;
@@ -90,7 +101,9 @@ impl ViewSpec {
 
 /// The top-level keys [`ViewSpec`] owns; a scene that embeds a view parses
 /// these with [`SceneDoc::parse_split`] and the rest with its own struct.
-pub const VIEW_KEYS: &[&str] = &["camera", "width", "height", "roi", "aabb", "near", "far", "jitter"];
+pub const VIEW_KEYS: &[&str] = &[
+    "camera", "width", "height", "roi", "aabb", "near", "far", "jitter",
+];
 
 /// A `renderer: rays` scene: nothing but the view.
 #[derive(Clone, Debug, Deserialize, PartialEq)]

@@ -69,7 +69,8 @@ pub struct OpCtx<'a> {
 impl<'a> OpCtx<'a> {
     /// The scene, or an error saying this operation needs one.
     pub fn scene(&self) -> Result<&'a SceneDoc> {
-        self.scene.ok_or_else(|| Error::invalid(self.case_id, "this operation needs a `scene:`"))
+        self.scene
+            .ok_or_else(|| Error::invalid(self.case_id, "this operation needs a `scene:`"))
     }
 
     /// Parameter `key` of the case's `params:`, typed; `None` when absent.
@@ -87,7 +88,12 @@ impl<'a> OpCtx<'a> {
 
     /// Parameter `key`, required.
     pub fn param_req<T: DeserializeOwned>(&self, key: &str) -> Result<T> {
-        self.param(key)?.ok_or_else(|| Error::invalid(format!("{} params", self.case_id), format!("missing `{key}`")))
+        self.param(key)?.ok_or_else(|| {
+            Error::invalid(
+                format!("{} params", self.case_id),
+                format!("missing `{key}`"),
+            )
+        })
     }
 
     /// A path relative to [`OpCtx::root`].
@@ -99,7 +105,10 @@ impl<'a> OpCtx<'a> {
     pub fn cpu_only(&self) -> Result<()> {
         match self.backend {
             BackendKind::Cpu => Ok(()),
-            BackendKind::Gpu => Err(Error::NotSupported(format!("{}: no GPU kernel for this operation yet", self.case_id))),
+            BackendKind::Gpu => Err(Error::NotSupported(format!(
+                "{}: no GPU kernel for this operation yet",
+                self.case_id
+            ))),
         }
     }
 }
@@ -117,7 +126,16 @@ pub struct OpEntry {
 
 /// Every operation, in table order.
 pub fn table() -> impl Iterator<Item = &'static OpEntry> {
-    [rays::OPS, volume::OPS, pathtrace::OPS, transport::OPS, voxels::OPS, selftest::OPS].into_iter().flatten()
+    [
+        rays::OPS,
+        volume::OPS,
+        pathtrace::OPS,
+        transport::OPS,
+        voxels::OPS,
+        selftest::OPS,
+    ]
+    .into_iter()
+    .flatten()
 }
 
 /// Looks an operation up by name.

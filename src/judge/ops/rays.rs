@@ -30,6 +30,12 @@ pub const OPS: &[OpEntry] = &[
         run: generate,
     },
     OpEntry {
+        name: "rays.render",
+        doc: "hpjudge render of a rays scene (same as rays.generate)",
+        params: &[],
+        run: generate,
+    },
+    OpEntry {
         name: "rays.clip_reference",
         doc: "independent f64 rays and box entry/exit by face intersection",
         params: &[],
@@ -85,7 +91,10 @@ fn rays_outputs<F: Real>(r: &Rays<F>, shape: [usize; 2], out: &mut Outputs) -> R
     let hit: Vec<u8> = (0..r.len()).map(|i| r.hits(i) as u8).collect();
     let hits = hit.iter().filter(|&&h| h == 1).count() as u64;
     out.tensor("hit", Tensor::from_shape_vec(&shape, hit)?);
-    out.tensor("pixel", Tensor::from_shape_vec(&shape, r.pixel.iter().map(|&p| p as i32).collect())?);
+    out.tensor(
+        "pixel",
+        Tensor::from_shape_vec(&shape, r.pixel.iter().map(|&p| p as i32).collect())?,
+    );
     out.counter("rays", r.len() as u64).counter("hits", hits);
     Ok(())
 }
@@ -100,13 +109,15 @@ fn generate(ctx: &OpCtx) -> Result<Outputs> {
         Precision::F32 => {
             let r = f_ray::<f32>(&cam, &gen, &ctx.budget)?;
             let s = t.elapsed().as_secs_f64();
-            out.metric("time_s", s).metric("mrays_per_s", r.len() as f64 / s / 1e6);
+            out.metric("time_s", s)
+                .metric("mrays_per_s", r.len() as f64 / s / 1e6);
             rays_outputs(&r, shape, &mut out)?;
         }
         Precision::F64 => {
             let r = f_ray::<f64>(&cam, &gen, &ctx.budget)?;
             let s = t.elapsed().as_secs_f64();
-            out.metric("time_s", s).metric("mrays_per_s", r.len() as f64 / s / 1e6);
+            out.metric("time_s", s)
+                .metric("mrays_per_s", r.len() as f64 / s / 1e6);
             rays_outputs(&r, shape, &mut out)?;
         }
     }
@@ -128,7 +139,11 @@ fn faces_clip(o: [f64; 3], d: [f64; 3], b: &Aabb, near: f64, far: f64) -> (f64, 
             // Along an axis the ray does not move in, the coordinate is exact.
             let on_face = (0..3).filter(|&k| k != axis).all(|k| {
                 let p = o[k] + t * d[k];
-                let slack = if d[k] == 0.0 { 0.0 } else { 1e-12 * (1.0 + p.abs()) };
+                let slack = if d[k] == 0.0 {
+                    0.0
+                } else {
+                    1e-12 * (1.0 + p.abs())
+                };
                 p >= b.min[k] - slack && p <= b.max[k] + slack
             });
             if on_face {
@@ -138,7 +153,10 @@ fn faces_clip(o: [f64; 3], d: [f64; 3], b: &Aabb, near: f64, far: f64) -> (f64, 
     }
     // An axis-parallel ray lying in a face plane meets that face along a
     // segment; its entry/exit come from the other axes' planes, found above.
-    let (lo, hi) = match (ts.iter().cloned().reduce(f64::min), ts.iter().cloned().reduce(f64::max)) {
+    let (lo, hi) = match (
+        ts.iter().cloned().reduce(f64::min),
+        ts.iter().cloned().reduce(f64::max),
+    ) {
         (Some(a), Some(b)) => (a.max(near), b.min(far)),
         _ => return (near, near, false),
     };
@@ -153,7 +171,9 @@ fn faces_clip(o: [f64; 3], d: [f64; 3], b: &Aabb, near: f64, far: f64) -> (f64, 
 /// camera's K and C2W in f64 (independent of `camera::RealCamera`).
 fn reference_ray(cam: &Camera, px: f64, py: f64, w: u32, h: u32) -> ([f64; 3], [f64; 3]) {
     let m = cam.c2w();
-    let rot = |v: [f64; 3]| -> [f64; 3] { [0, 1, 2].map(|r| m[r][0] * v[0] + m[r][1] * v[1] + m[r][2] * v[2]) };
+    let rot = |v: [f64; 3]| -> [f64; 3] {
+        [0, 1, 2].map(|r| m[r][0] * v[0] + m[r][1] * v[1] + m[r][2] * v[2])
+    };
     let pos = [m[0][3], m[1][3], m[2][3]];
     match cam {
         Camera::Pinhole { k, .. } => {
@@ -161,11 +181,18 @@ fn reference_ray(cam: &Camera, px: f64, py: f64, w: u32, h: u32) -> ([f64; 3], [
             let n = d.iter().map(|x| x * x).sum::<f64>().sqrt();
             (pos, d.map(|x| x / n))
         }
-        Camera::Orthographic { half_width, half_height, .. } => {
+        Camera::Orthographic {
+            half_width,
+            half_height,
+            ..
+        } => {
             let x = half_width * (2.0 * px / w as f64 - 1.0);
             let y = half_height * (1.0 - 2.0 * py / h as f64);
             let oc = rot([x, y, 0.0]);
-            ([oc[0] + pos[0], oc[1] + pos[1], oc[2] + pos[2]], rot([0.0, 0.0, -1.0]))
+            (
+                [oc[0] + pos[0], oc[1] + pos[1], oc[2] + pos[2]],
+                rot([0.0, 0.0, -1.0]),
+            )
         }
     }
 }
@@ -175,12 +202,18 @@ fn clip_reference(ctx: &OpCtx) -> Result<Outputs> {
     let roi = gen.region();
     let shape = image_shape(&gen);
     let n = shape[0] * shape[1];
-    let (mut t0, mut t1, mut hit, mut ds) = (vec![0.0; n], vec![0.0; n], vec![0u8; n], vec![[0.0; 3]; n]);
+    let (mut t0, mut t1, mut hit, mut ds) =
+        (vec![0.0; n], vec![0.0; n], vec![0u8; n], vec![[0.0; 3]; n]);
     for i in 0..n {
         let u = roi.x + (i as u32 % roi.width);
         let v = roi.y + (i as u32 / roi.width);
         let pixel = v * gen.width + u;
-        let (jx, jy) = gen.jitter.map_or((0.5, 0.5), |j| (rand_f64(j.seed, pixel, j.sample, 0), rand_f64(j.seed, pixel, j.sample, 1)));
+        let (jx, jy) = gen.jitter.map_or((0.5, 0.5), |j| {
+            (
+                rand_f64(j.seed, pixel, j.sample, 0),
+                rand_f64(j.seed, pixel, j.sample, 1),
+            )
+        });
         let (o, d) = reference_ray(&cam, u as f64 + jx, v as f64 + jy, gen.width, gen.height);
         let (a, b, h) = faces_clip(o, d, &gen.aabb, gen.near, gen.far);
         (t0[i], t1[i], hit[i], ds[i]) = (a, b, h as u8, d);
@@ -202,14 +235,20 @@ struct BoxParam {
 
 fn listed(ctx: &OpCtx) -> Result<(Vec<[f64; 6]>, Aabb, f64, f64)> {
     let rays: Vec<[f64; 6]> = ctx.param_req("rays")?;
-    let b = ctx.param::<BoxParam>("aabb")?.map_or(Aabb::UNIT, |b| Aabb { min: b.min, max: b.max });
+    let b = ctx.param::<BoxParam>("aabb")?.map_or(Aabb::UNIT, |b| Aabb {
+        min: b.min,
+        max: b.max,
+    });
     b.validate()?;
     let near = ctx.param_or("near", 0.0)?;
     let far = ctx.param_or("far", f64::INFINITY)?;
     for (i, r) in rays.iter().enumerate() {
         let n = (r[3] * r[3] + r[4] * r[4] + r[5] * r[5]).sqrt();
         if r.iter().any(|x| !x.is_finite()) || n == 0.0 {
-            return Err(Error::invalid(format!("{} params.rays[{i}]", ctx.case_id), "needs finite numbers and d != 0"));
+            return Err(Error::invalid(
+                format!("{} params.rays[{i}]", ctx.case_id),
+                "needs finite numbers and d != 0",
+            ));
         }
     }
     Ok((rays, b, near, far))
@@ -224,14 +263,22 @@ fn clip_list_in<F: Real>(rays: &[[f64; 6]], b: &Aabb, near: f64, far: f64) -> Re
     let (mut t0, mut t1, mut hit) = (vec![], vec![], vec![]);
     for r in rays {
         let (o, d) = unit(r);
-        let (a, c) = clip_aabb(o.map(F::of), d.map(F::of), b.min.map(F::of), b.max.map(F::of), F::of(near), F::of(far));
+        let (a, c) = clip_aabb(
+            o.map(F::of),
+            d.map(F::of),
+            b.min.map(F::of),
+            b.max.map(F::of),
+            F::of(near),
+            F::of(far),
+        );
         t0.push(a);
         t1.push(c);
         hit.push((c > a) as u8);
     }
     let n = [rays.len()];
     let mut out = Outputs::default();
-    out.tensor("t0", Tensor::real(&n, t0)?).tensor("t1", Tensor::real(&n, t1)?);
+    out.tensor("t0", Tensor::real(&n, t0)?)
+        .tensor("t1", Tensor::real(&n, t1)?);
     out.tensor("hit", Tensor::from_shape_vec(&n, hit)?);
     Ok(out)
 }
@@ -257,7 +304,8 @@ fn clip_list_reference(ctx: &OpCtx) -> Result<Outputs> {
     }
     let n = [rays.len()];
     let mut out = Outputs::default();
-    out.tensor("t0", Tensor::real(&n, t0)?).tensor("t1", Tensor::real(&n, t1)?);
+    out.tensor("t0", Tensor::real(&n, t0)?)
+        .tensor("t1", Tensor::real(&n, t1)?);
     out.tensor("hit", Tensor::from_shape_vec(&n, hit)?);
     Ok(out)
 }
@@ -266,7 +314,9 @@ fn jitter_offsets(ctx: &OpCtx) -> Result<Outputs> {
     ctx.cpu_only()?;
     let (_, gen) = view(ctx)?;
     let at = ctx.scene()?.at();
-    let j = gen.jitter.ok_or_else(|| Error::invalid(at, "this operation needs `jitter:`"))?;
+    let j = gen
+        .jitter
+        .ok_or_else(|| Error::invalid(at, "this operation needs `jitter:`"))?;
     let roi = gen.region();
     let n = roi.width as usize * roi.height as usize;
     let (mut x, mut y) = (Vec::with_capacity(n), Vec::with_capacity(n));
@@ -276,7 +326,8 @@ fn jitter_offsets(ctx: &OpCtx) -> Result<Outputs> {
         y.push(rand_f64(j.seed, pixel, j.sample, 1));
     }
     let mut out = Outputs::default();
-    out.tensor("jitter_x", Tensor::real(&[n], x)?).tensor("jitter_y", Tensor::real(&[n], y)?);
+    out.tensor("jitter_x", Tensor::real(&[n], x)?)
+        .tensor("jitter_y", Tensor::real(&[n], y)?);
     Ok(out)
 }
 
@@ -324,7 +375,12 @@ fn constant(ctx: &OpCtx) -> Result<Outputs> {
             "float64" => Tensor::from_shape_vec(&shape, c.data),
             "int32" => Tensor::from_shape_vec(&shape, c.data.iter().map(|&x| x as i32).collect()),
             "uint8" => Tensor::from_shape_vec(&shape, c.data.iter().map(|&x| x as u8).collect()),
-            other => return Err(Error::invalid(at, format!("dtype {other:?} is not float32, float64, int32 or uint8"))),
+            other => {
+                return Err(Error::invalid(
+                    at,
+                    format!("dtype {other:?} is not float32, float64, int32 or uint8"),
+                ))
+            }
         }
         .map_err(|e| Error::invalid(at, e.to_string()))?;
         out.tensor(&name, t);
