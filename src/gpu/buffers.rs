@@ -23,16 +23,22 @@ pub fn storage_in<T: Pod>(ctx: &GpuContext, label: &str, data: &[T]) -> Result<w
     ctx.check_binding(label, bytes.len() as u64)?;
     let padded;
     let contents = if (bytes.len() as u64) < MIN_BYTES {
-        padded = [bytes, &[0u8; MIN_BYTES as usize][..MIN_BYTES as usize - bytes.len()]].concat();
+        padded = [
+            bytes,
+            &[0u8; MIN_BYTES as usize][..MIN_BYTES as usize - bytes.len()],
+        ]
+        .concat();
         &padded[..]
     } else {
         bytes
     };
-    Ok(ctx.device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
-        label: Some(label),
-        contents,
-        usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST,
-    }))
+    Ok(ctx
+        .device
+        .create_buffer_init(&wgpu::util::BufferInitDescriptor {
+            label: Some(label),
+            contents,
+            usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST,
+        }))
 }
 
 /// A writable storage buffer of `bytes` (rounded up to 4, at least
@@ -49,11 +55,12 @@ pub fn storage_out(ctx: &GpuContext, label: &str, bytes: u64) -> Result<wgpu::Bu
 
 /// A uniform buffer holding one `#[repr(C)]` parameter struct.
 pub fn uniform<T: Pod>(ctx: &GpuContext, label: &str, value: &T) -> wgpu::Buffer {
-    ctx.device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
-        label: Some(label),
-        contents: bytemuck::bytes_of(value),
-        usage: wgpu::BufferUsages::UNIFORM,
-    })
+    ctx.device
+        .create_buffer_init(&wgpu::util::BufferInitDescriptor {
+            label: Some(label),
+            contents: bytemuck::bytes_of(value),
+            usage: wgpu::BufferUsages::UNIFORM,
+        })
 }
 
 /// One compute dispatch: `pipeline` over `n` items (workgroup size `wg`),
@@ -77,10 +84,16 @@ pub struct Readback {
 impl Readback {
     /// Buffer `i` as a vector of `T`, truncated to `n` elements.
     pub fn take<T: Pod>(&self, i: usize, n: usize) -> Result<Vec<T>> {
-        let b = self.bytes.get(i).ok_or_else(|| Error::Gpu(format!("readback has no buffer {i}")))?;
+        let b = self
+            .bytes
+            .get(i)
+            .ok_or_else(|| Error::Gpu(format!("readback has no buffer {i}")))?;
         let mut v: Vec<T> = bytemuck::pod_collect_to_vec(b);
         if v.len() < n {
-            return Err(Error::Gpu(format!("readback buffer {i} has {} elements, {n} expected", v.len())));
+            return Err(Error::Gpu(format!(
+                "readback buffer {i} has {} elements, {n} expected",
+                v.len()
+            )));
         }
         v.truncate(n);
         Ok(v)
@@ -91,12 +104,21 @@ impl Readback {
 /// of `read` to a staging buffer, submits once and waits; returns their
 /// bytes. Validation and out-of-memory errors become [`Error::Gpu`] naming
 /// `label`.
-pub fn run(ctx: &GpuContext, label: &str, passes: &[Pass], read: &[&wgpu::Buffer]) -> Result<Readback> {
+pub fn run(
+    ctx: &GpuContext,
+    label: &str,
+    passes: &[Pass],
+    read: &[&wgpu::Buffer],
+) -> Result<Readback> {
     let dev = &ctx.device;
-    let plans = passes.iter().map(|p| ctx.dispatch(p.label, p.n, p.wg)).collect::<Result<Vec<_>>>()?;
+    let plans = passes
+        .iter()
+        .map(|p| ctx.dispatch(p.label, p.n, p.wg))
+        .collect::<Result<Vec<_>>>()?;
     let oom = dev.push_error_scope(wgpu::ErrorFilter::OutOfMemory);
     let val = dev.push_error_scope(wgpu::ErrorFilter::Validation);
-    let mut enc = dev.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some(label) });
+    let mut enc =
+        dev.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some(label) });
     for (p, plan) in passes.iter().zip(&plans) {
         if plan.groups_x == 0 {
             continue;
@@ -106,15 +128,20 @@ pub fn run(ctx: &GpuContext, label: &str, passes: &[Pass], read: &[&wgpu::Buffer
             .buffers
             .iter()
             .enumerate()
-            .map(|(i, b)| wgpu::BindGroupEntry { binding: i as u32, resource: b.as_entire_binding() })
+            .map(|(i, b)| wgpu::BindGroupEntry {
+                binding: i as u32,
+                resource: b.as_entire_binding(),
+            })
             .collect();
         let bg = dev.create_bind_group(&wgpu::BindGroupDescriptor {
             label: Some(p.label),
             layout: &layout,
             entries: &entries,
         });
-        let mut cp =
-            enc.begin_compute_pass(&wgpu::ComputePassDescriptor { label: Some(p.label), timestamp_writes: None });
+        let mut cp = enc.begin_compute_pass(&wgpu::ComputePassDescriptor {
+            label: Some(p.label),
+            timestamp_writes: None,
+        });
         cp.set_pipeline(p.pipeline);
         cp.set_bind_group(0, &bg, &[]);
         cp.dispatch_workgroups(plan.groups_x, plan.groups_y, 1);

@@ -79,7 +79,10 @@ pub fn backends() -> Result<wgpu::Backends> {
                 )));
             }
             if b.is_empty() {
-                return Err(Error::invalid("WGPU_BACKEND", format!("{s:?} names no backend (vulkan, metal, dx12)")));
+                return Err(Error::invalid(
+                    "WGPU_BACKEND",
+                    format!("{s:?} names no backend (vulkan, metal, dx12)"),
+                ));
             }
             Ok(b)
         }
@@ -97,7 +100,10 @@ fn instance(b: wgpu::Backends) -> wgpu::Instance {
 pub fn adapters() -> Vec<AdapterSummary> {
     let Ok(b) = backends() else { return vec![] };
     let inst = instance(b);
-    pollster::block_on(inst.enumerate_adapters(b)).iter().map(|a| AdapterSummary::of(&a.get_info())).collect()
+    pollster::block_on(inst.enumerate_adapters(b))
+        .iter()
+        .map(|a| AdapterSummary::of(&a.get_info()))
+        .collect()
 }
 
 fn type_rank(t: wgpu::DeviceType) -> u8 {
@@ -138,11 +144,13 @@ pub struct Dispatch {
 impl GpuContext {
     /// The process's context, created on first use.
     pub fn get() -> Result<&'static GpuContext> {
-        match CONTEXT
-            .get_or_init(|| GpuContext::create().map_err(|e| (matches!(e, Error::NotSupported(_)), e.to_string())))
-        {
+        match CONTEXT.get_or_init(|| {
+            GpuContext::create().map_err(|e| (matches!(e, Error::NotSupported(_)), e.to_string()))
+        }) {
             Ok(c) => Ok(c),
-            Err((true, m)) => Err(Error::NotSupported(m.trim_start_matches("not supported: ").to_string())),
+            Err((true, m)) => Err(Error::NotSupported(
+                m.trim_start_matches("not supported: ").to_string(),
+            )),
             Err((false, m)) => Err(Error::Gpu(m.clone())),
         }
     }
@@ -166,7 +174,11 @@ impl GpuContext {
             .enumerate()
             .min_by_key(|(i, a)| (type_rank(a.get_info().device_type), *i))
             .map(|(_, a)| a)
-            .ok_or_else(|| Error::NotSupported(format!("no GPU adapter for backends {b:?}: {HOW_TO_GET_ONE}")))?;
+            .ok_or_else(|| {
+                Error::NotSupported(format!(
+                    "no GPU adapter for backends {b:?}: {HOW_TO_GET_ONE}"
+                ))
+            })?;
         let info = adapter.get_info();
         let limits = adapter.limits();
         let features = adapter.features() & wgpu::Features::PIPELINE_CACHE;
@@ -178,12 +190,28 @@ impl GpuContext {
             memory_hints: wgpu::MemoryHints::Performance,
             trace: wgpu::Trace::Off,
         };
-        let (device, queue) = pollster::block_on(adapter.request_device(&desc))
-            .map_err(|e| Error::Gpu(format!("request_device on {} ({}): {e}", info.name, info.backend.to_str())))?;
-        let (cache, cache_file) =
-            if features.contains(wgpu::Features::PIPELINE_CACHE) { open_cache(&device, &info) } else { (None, None) };
+        let (device, queue) = pollster::block_on(adapter.request_device(&desc)).map_err(|e| {
+            Error::Gpu(format!(
+                "request_device on {} ({}): {e}",
+                info.name,
+                info.backend.to_str()
+            ))
+        })?;
+        let (cache, cache_file) = if features.contains(wgpu::Features::PIPELINE_CACHE) {
+            open_cache(&device, &info)
+        } else {
+            (None, None)
+        };
         tracing::info!(adapter = %info.name, backend = info.backend.to_str(), driver = %info.driver, "GPU context");
-        Ok(GpuContext { adapter, device, queue, limits, info, cache, cache_file })
+        Ok(GpuContext {
+            adapter,
+            device,
+            queue,
+            limits,
+            info,
+            cache,
+            cache_file,
+        })
     }
 
     /// Name, backend and driver of the adapter in use.
@@ -204,7 +232,10 @@ impl GpuContext {
         };
         let Some(data) = c.get_data() else { return };
         let tmp = path.with_extension(format!("tmp{}", std::process::id()));
-        if std::fs::write(&tmp, &data).and_then(|_| std::fs::rename(&tmp, path)).is_err() {
+        if std::fs::write(&tmp, &data)
+            .and_then(|_| std::fs::rename(&tmp, path))
+            .is_err()
+        {
             std::fs::remove_file(&tmp).ok();
             tracing::debug!(path = %path.display(), "pipeline cache not saved");
         }
@@ -213,7 +244,12 @@ impl GpuContext {
     /// Plans a 1-D dispatch of `n` items at workgroup size `wg` against
     /// this adapter's limits (see [`plan_dispatch`]).
     pub fn dispatch(&self, label: &str, n: u64, wg: u32) -> Result<Dispatch> {
-        plan_dispatch(label, n, wg, self.limits.max_compute_workgroups_per_dimension)
+        plan_dispatch(
+            label,
+            n,
+            wg,
+            self.limits.max_compute_workgroups_per_dimension,
+        )
     }
 
     /// Refuses a storage binding of `bytes` over the adapter's
@@ -231,7 +267,9 @@ impl GpuContext {
 
     /// The largest storage buffer one binding may hold, in bytes.
     pub fn max_binding(&self) -> u64 {
-        self.limits.max_storage_buffer_binding_size.min(self.limits.max_buffer_size)
+        self.limits
+            .max_storage_buffer_binding_size
+            .min(self.limits.max_buffer_size)
     }
 }
 
@@ -243,7 +281,10 @@ pub fn plan_dispatch(label: &str, n: u64, wg: u32, max: u32) -> Result<Dispatch>
     let max = max as u64;
     let groups = n.div_ceil(wg.max(1) as u64);
     if groups == 0 {
-        return Ok(Dispatch { groups_x: 0, groups_y: 0 });
+        return Ok(Dispatch {
+            groups_x: 0,
+            groups_y: 0,
+        });
     }
     let gx = groups.min(max);
     let gy = groups.div_ceil(gx);
@@ -253,10 +294,16 @@ pub fn plan_dispatch(label: &str, n: u64, wg: u32, max: u32) -> Result<Dispatch>
              (max_compute_workgroups_per_dimension); render in smaller batches"
         )));
     }
-    Ok(Dispatch { groups_x: gx as u32, groups_y: gy as u32 })
+    Ok(Dispatch {
+        groups_x: gx as u32,
+        groups_y: gy as u32,
+    })
 }
 
-fn open_cache(device: &wgpu::Device, info: &wgpu::AdapterInfo) -> (Option<wgpu::PipelineCache>, Option<PathBuf>) {
+fn open_cache(
+    device: &wgpu::Device,
+    info: &wgpu::AdapterInfo,
+) -> (Option<wgpu::PipelineCache>, Option<PathBuf>) {
     let dir = std::env::var_os("HOTPATH_PIPELINE_CACHE")
         .map(PathBuf::from)
         .unwrap_or_else(|| std::env::temp_dir().join("hotpath-pipeline-cache"));
@@ -285,20 +332,38 @@ mod tests {
 
     #[test]
     fn dispatch_plans_cover_every_item_within_limits() {
-        for (n, wg, max) in
-            [(1u64, 64u32, 65535u32), (64, 64, 65535), (65, 64, 65535), (1 << 30, 64, 65535), (1000, 8, 4)]
-        {
+        for (n, wg, max) in [
+            (1u64, 64u32, 65535u32),
+            (64, 64, 65535),
+            (65, 64, 65535),
+            (1 << 30, 64, 65535),
+            (1000, 8, 4),
+        ] {
             match plan_dispatch("t", n, wg, max) {
                 Ok(d) => {
                     assert!(d.groups_x <= max && d.groups_y <= max);
                     let cap = d.groups_x as u64 * d.groups_y as u64 * wg as u64;
-                    assert!(cap >= n && cap < n + d.groups_x as u64 * wg as u64, "{n} {d:?}");
+                    assert!(
+                        cap >= n && cap < n + d.groups_x as u64 * wg as u64,
+                        "{n} {d:?}"
+                    );
                 }
                 Err(e) => assert!((1000, 8, 4) == (n, wg, max), "{e}"),
             }
         }
-        let e = plan_dispatch("f_fused", 1000, 8, 4).unwrap_err().to_string();
-        assert!(e.contains("f_fused") && e.contains("smaller batches"), "{e}");
-        assert_eq!(plan_dispatch("t", 0, 64, 8).unwrap(), Dispatch { groups_x: 0, groups_y: 0 });
+        let e = plan_dispatch("f_fused", 1000, 8, 4)
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("f_fused") && e.contains("smaller batches"),
+            "{e}"
+        );
+        assert_eq!(
+            plan_dispatch("t", 0, 64, 8).unwrap(),
+            Dispatch {
+                groups_x: 0,
+                groups_y: 0
+            }
+        );
     }
 }

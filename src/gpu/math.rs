@@ -33,7 +33,13 @@ pub fn rng_table(ctx: &GpuContext, keys: &[[u32; 4]]) -> Result<(Vec<u32>, Vec<f
     let k = storage_in(ctx, "rng_table keys", keys)?;
     let w = storage_out(ctx, "rng_table words", n as u64 * 4)?;
     let f = storage_out(ctx, "rng_table floats", n as u64 * 4)?;
-    let pass = Pass { label: "rng_table", pipeline: &pipe, buffers: &[&u, &k, &w, &f], n: n as u64, wg: 64 };
+    let pass = Pass {
+        label: "rng_table",
+        pipeline: &pipe,
+        buffers: &[&u, &k, &w, &f],
+        n: n as u64,
+        wg: 64,
+    };
     let rb = run(ctx, "rng_table", &[pass], &[&w, &f])?;
     Ok((rb.take(0, n as usize)?, rb.take(1, n as usize)?))
 }
@@ -48,7 +54,13 @@ pub fn expm1_table(ctx: &GpuContext, xs: &[f32]) -> Result<Vec<f32>> {
     let u = uniform(ctx, "expm1_table params", &TableParams { n, _pad: [0; 3] });
     let x = storage_in(ctx, "expm1_table xs", xs)?;
     let y = storage_out(ctx, "expm1_table ys", n as u64 * 4)?;
-    let pass = Pass { label: "expm1_table", pipeline: &pipe, buffers: &[&u, &x, &y], n: n as u64, wg: 64 };
+    let pass = Pass {
+        label: "expm1_table",
+        pipeline: &pipe,
+        buffers: &[&u, &x, &y],
+        n: n as u64,
+        wg: 64,
+    };
     let rb = run(ctx, "expm1_table", &[pass], &[&y])?;
     rb.take(0, n as usize)
 }
@@ -80,19 +92,29 @@ mod tests {
         let (w, f) = rng_table(ctx, &keys).unwrap();
         for (i, k) in keys.iter().enumerate() {
             assert_eq!(w[i], rng::rand_u32(k[0], k[1], k[2], k[3]), "key {k:?}");
-            assert_eq!(f[i].to_bits(), rng::rand_f32(k[0], k[1], k[2], k[3]).to_bits(), "key {k:?}");
+            assert_eq!(
+                f[i].to_bits(),
+                rng::rand_f32(k[0], k[1], k[2], k[3]).to_bits(),
+                "key {k:?}"
+            );
         }
     }
 
     #[test]
     fn gpu_expm1_keeps_relative_accuracy() {
         let Some(ctx) = gpu() else { return };
-        let xs: Vec<f32> =
-            (-300..=60).map(|k| -(10f32.powf(k as f32 / 20.0))).chain([0.0, 1e-30, 0.3, -0.49999]).collect();
+        let xs: Vec<f32> = (-300..=60)
+            .map(|k| -(10f32.powf(k as f32 / 20.0)))
+            .chain([0.0, 1e-30, 0.3, -0.49999])
+            .collect();
         let ys = expm1_table(ctx, &xs).unwrap();
         for (x, y) in xs.iter().zip(&ys) {
             let r = (*x as f64).exp_m1();
-            let err = if r == 0.0 { y.abs() as f64 } else { ((*y as f64) - r).abs() / r.abs() };
+            let err = if r == 0.0 {
+                y.abs() as f64
+            } else {
+                ((*y as f64) - r).abs() / r.abs()
+            };
             assert!(err < 4e-7, "expm1({x}) = {y}, f64 {r}, rel err {err}");
         }
     }

@@ -40,12 +40,29 @@ impl RayParams {
     /// unit direction always leaves the box before that.
     pub fn new(cam: &Camera, gen: &RayGen) -> RayParams {
         let c = cam.c2w();
-        let row = |r: usize| [c[r][0] as f32, c[r][1] as f32, c[r][2] as f32, c[r][3] as f32];
+        let row = |r: usize| {
+            [
+                c[r][0] as f32,
+                c[r][1] as f32,
+                c[r][2] as f32,
+                c[r][3] as f32,
+            ]
+        };
         let (kind, model) = match cam {
             Camera::Pinhole { k, .. } => (0, [k.fx as f32, k.fy as f32, k.cx as f32, k.cy as f32]),
-            Camera::Orthographic { half_width, half_height, .. } => {
-                (1, [*half_width as f32, *half_height as f32, gen.width as f32, gen.height as f32])
-            }
+            Camera::Orthographic {
+                half_width,
+                half_height,
+                ..
+            } => (
+                1,
+                [
+                    *half_width as f32,
+                    *half_height as f32,
+                    gen.width as f32,
+                    gen.height as f32,
+                ],
+            ),
         };
         let roi = gen.region();
         let (a, b) = (gen.aabb.min, gen.aabb.max);
@@ -54,7 +71,12 @@ impl RayParams {
             rot: [row(0), row(1), row(2)],
             model,
             bmin_near: [a[0] as f32, a[1] as f32, a[2] as f32, gen.near as f32],
-            bmax_far: [b[0] as f32, b[1] as f32, b[2] as f32, (gen.far as f32).min(f32::MAX)],
+            bmax_far: [
+                b[0] as f32,
+                b[1] as f32,
+                b[2] as f32,
+                (gen.far as f32).min(f32::MAX),
+            ],
             kind,
             width: gen.width,
             roi_x: roi.x,
@@ -72,13 +94,21 @@ impl RayParams {
 /// `f_ray` on the GPU: the same rays as [`crate::rays::f_ray::<f32>`] (to
 /// f32 rounding of the division and square root), and the seconds the
 /// kernel and readback took.
-pub fn f_ray(ctx: &GpuContext, cam: &Camera, gen: &RayGen, budget: &MemBudget) -> Result<(Rays<f32>, f64)> {
+pub fn f_ray(
+    ctx: &GpuContext,
+    cam: &Camera,
+    gen: &RayGen,
+    budget: &MemBudget,
+) -> Result<(Rays<f32>, f64)> {
     gen.validate()?;
     cam.validate()?;
     let roi = gen.region();
     let n = roi.width as u64 * roi.height as u64;
     // Host copies: the readback bytes and the SoA result.
-    budget.check("gpu f_ray rays", bytes_for(n, 2 * Rays::<f32>::BYTES_PER_RAY))?;
+    budget.check(
+        "gpu f_ray rays",
+        bytes_for(n, 2 * Rays::<f32>::BYTES_PER_RAY),
+    )?;
     let p = RayParams::new(cam, gen);
     let pipe = pipeline(ctx, "rays", "f_ray")?;
     let u = uniform(ctx, "f_ray params", &p);
@@ -87,7 +117,13 @@ pub fn f_ray(ctx: &GpuContext, cam: &Camera, gen: &RayGen, budget: &MemBudget) -
     let t0 = storage_out(ctx, "f_ray t0", n * 4)?;
     let t1 = storage_out(ctx, "f_ray t1", n * 4)?;
     let px = storage_out(ctx, "f_ray pixel", n * 4)?;
-    let pass = Pass { label: "f_ray", pipeline: &pipe, buffers: &[&u, &o, &d, &t0, &t1, &px], n, wg: 64 };
+    let pass = Pass {
+        label: "f_ray",
+        pipeline: &pipe,
+        buffers: &[&u, &o, &d, &t0, &t1, &px],
+        n,
+        wg: 64,
+    };
     let rb = run(ctx, "f_ray", &[pass], &[&o, &d, &t0, &t1, &px])?;
     let n = n as usize;
     let of: Vec<f32> = rb.take(0, 3 * n)?;
