@@ -97,3 +97,83 @@ fn clip_aabb(o: vec3<f32>, d: vec3<f32>, bmin: vec3<f32>, bmax: vec3<f32>, near:
     }
     return vec2<f32>(near, near);
 }
+
+// Camera and ray-generator parameters, shared by f_ray (rays.wgsl) and the
+// fused volume kernel. Host side: src/gpu/rays.rs `RayParams` (144 bytes,
+// keep in sync).
+struct CamParams {
+    // Rows of the camera-to-world rotation; w holds the translation t[row].
+    rot0: vec4<f32>,
+    rot1: vec4<f32>,
+    rot2: vec4<f32>,
+    // Pinhole: (fx, fy, cx, cy). Orthographic: (hw, hh, W, H).
+    model: vec4<f32>,
+    // Box min and near (w); box max and far (w, finite).
+    bmin_near: vec4<f32>,
+    bmax_far: vec4<f32>,
+    // 0 = pinhole, 1 = orthographic.
+    kind: u32,
+    width: u32,
+    roi_x: u32,
+    roi_y: u32,
+    roi_w: u32,
+    n: u32,
+    // 1 = jittered pixel positions (seed, sample), 0 = pixel centres.
+    jitter: u32,
+    seed: u32,
+    sample: u32,
+    _pad0: u32,
+    _pad1: u32,
+    _pad2: u32,
+}
+
+struct Ray {
+    o: vec3<f32>,
+    d: vec3<f32>,
+    t0: f32,
+    t1: f32,
+    pixel: u32,
+}
+
+fn cam_rotate(c: CamParams, v: vec3<f32>) -> vec3<f32> {
+    return vec3<f32>(
+        c.rot0.x * v.x + c.rot0.y * v.y + c.rot0.z * v.z,
+        c.rot1.x * v.x + c.rot1.y * v.y + c.rot1.z * v.z,
+        c.rot2.x * v.x + c.rot2.y * v.y + c.rot2.z * v.z,
+    );
+}
+
+// Ray i of the region (row-major over the region), clipped to the box.
+// CPU twin: src/rays.rs `f_ray` one_ray + src/camera.rs `RealCamera::ray`.
+fn camera_ray(c: CamParams, i: u32) -> Ray {
+    let u = c.roi_x + i % c.roi_w;
+    let v = c.roi_y + i / c.roi_w;
+    let pixel = v * c.width + u;
+    var jx = 0.5;
+    var jy = 0.5;
+    if (c.jitter == 1u) {
+        jx = rand_f32(c.seed, pixel, c.sample, 0u);
+        jy = rand_f32(c.seed, pixel, c.sample, 1u);
+    }
+    let px = f32(u) + jx;
+    let py = f32(v) + jy;
+    let t = vec3<f32>(c.rot0.w, c.rot1.w, c.rot2.w);
+    var r: Ray;
+    if (c.kind == 0u) {
+        let dc = vec3<f32>((px - c.model.z) / c.model.x, -(py - c.model.w) / c.model.y, -1.0);
+        let dw = cam_rotate(c, dc);
+        let len = sqrt(dw.x * dw.x + dw.y * dw.y + dw.z * dw.z);
+        r.o = t;
+        r.d = dw / len;
+    } else {
+        let x = -c.model.x + 2.0 * c.model.x * px / c.model.z;
+        let y = c.model.y - 2.0 * c.model.y * py / c.model.w;
+        r.o = cam_rotate(c, vec3<f32>(x, y, 0.0)) + t;
+        r.d = cam_rotate(c, vec3<f32>(0.0, 0.0, -1.0));
+    }
+    let tt = clip_aabb(r.o, r.d, c.bmin_near.xyz, c.bmax_far.xyz, c.bmin_near.w, c.bmax_far.w);
+    r.t0 = tt.x;
+    r.t1 = tt.y;
+    r.pixel = pixel;
+    return r;
+}

@@ -48,7 +48,9 @@ pub fn storage_out(ctx: &GpuContext, label: &str, bytes: u64) -> Result<wgpu::Bu
     Ok(ctx.device.create_buffer(&wgpu::BufferDescriptor {
         label: Some(label),
         size: bytes.next_multiple_of(4).max(MIN_BYTES),
-        usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC,
+        usage: wgpu::BufferUsages::STORAGE
+            | wgpu::BufferUsages::COPY_SRC
+            | wgpu::BufferUsages::COPY_DST,
         mapped_at_creation: false,
     }))
 }
@@ -64,11 +66,12 @@ pub fn uniform<T: Pod>(ctx: &GpuContext, label: &str, value: &T) -> wgpu::Buffer
 }
 
 /// One compute dispatch: `pipeline` over `n` items (workgroup size `wg`),
-/// binding `buffers[i]` at `@group(0) @binding(i)`.
+/// with `(binding, buffer)` pairs of `@group(0)` (exactly the bindings the
+/// entry point uses: wgpu derives the layout from the shader).
 pub struct Pass<'a> {
     pub label: &'a str,
     pub pipeline: &'a wgpu::ComputePipeline,
-    pub buffers: &'a [&'a wgpu::Buffer],
+    pub buffers: &'a [(u32, &'a wgpu::Buffer)],
     pub n: u64,
     pub wg: u32,
 }
@@ -127,9 +130,8 @@ pub fn run(
         let entries: Vec<wgpu::BindGroupEntry> = p
             .buffers
             .iter()
-            .enumerate()
             .map(|(i, b)| wgpu::BindGroupEntry {
-                binding: i as u32,
+                binding: *i,
                 resource: b.as_entire_binding(),
             })
             .collect();

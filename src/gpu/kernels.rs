@@ -31,7 +31,12 @@ macro_rules! kernel {
 }
 
 /// Every kernel file except `common.wgsl`.
-pub const KERNELS: &[Kernel] = &[kernel!("rays"), kernel!("rng"), kernel!("expm1")];
+pub const KERNELS: &[Kernel] = &[
+    kernel!("rays"),
+    kernel!("rng"),
+    kernel!("expm1"),
+    kernel!("volume"),
+];
 
 /// The full source of kernel `name`: common.wgsl, then the file.
 pub fn source(name: &str) -> Result<String> {

@@ -36,7 +36,7 @@ pub fn rng_table(ctx: &GpuContext, keys: &[[u32; 4]]) -> Result<(Vec<u32>, Vec<f
     let pass = Pass {
         label: "rng_table",
         pipeline: &pipe,
-        buffers: &[&u, &k, &w, &f],
+        buffers: &[(0, &u), (1, &k), (2, &w), (3, &f)],
         n: n as u64,
         wg: 64,
     };
@@ -57,7 +57,7 @@ pub fn expm1_table(ctx: &GpuContext, xs: &[f32]) -> Result<Vec<f32>> {
     let pass = Pass {
         label: "expm1_table",
         pipeline: &pipe,
-        buffers: &[&u, &x, &y],
+        buffers: &[(0, &u), (1, &x), (2, &y)],
         n: n as u64,
         wg: 64,
     };

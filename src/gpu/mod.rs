@@ -11,5 +11,6 @@ pub mod context;
 pub mod kernels;
 pub mod math;
 pub mod rays;
+pub mod volume;
 
 pub use context::{adapters, AdapterSummary, GpuContext};

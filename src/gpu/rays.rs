@@ -12,8 +12,9 @@ use crate::camera::Camera;
 use crate::error::Result;
 use crate::rays::{RayGen, Rays};
 
-/// Uniform of `kernels/rays.wgsl` (keep in sync with `struct RayParams`
-/// there): 6 vec4 then 12 u32, 144 bytes.
+/// Camera uniform of `kernels/rays.wgsl` and `kernels/volume.wgsl` (keep in
+/// sync with `struct CamParams` in `kernels/common.wgsl`): 6 vec4 then 12
+/// u32, 144 bytes.
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Pod, Zeroable)]
 pub struct RayParams {
@@ -120,7 +121,7 @@ pub fn f_ray(
     let pass = Pass {
         label: "f_ray",
         pipeline: &pipe,
-        buffers: &[&u, &o, &d, &t0, &t1, &px],
+        buffers: &[(0, &u), (1, &o), (2, &d), (3, &t0), (4, &t1), (5, &px)],
         n,
         wg: 64,
     };
