@@ -7,6 +7,7 @@
 
 pub mod camera;
 pub mod rays;
+pub mod volume;
 
 use std::path::{Path, PathBuf};
 
@@ -163,6 +164,7 @@ impl SceneDoc {
 pub fn validate(doc: &SceneDoc) -> Result<()> {
     match doc.renderer()? {
         "rays" => rays::parse(doc).and_then(|v| v.build()).map(drop),
+        "volume" => volume::load(doc).map(drop),
         other => Err(Error::invalid(
             doc.at(),
             format!(
