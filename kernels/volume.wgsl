@@ -29,8 +29,8 @@ const FLAG_TRUNCATED: u32 = 4u;
 // A decision of this ray sits within rounding of its threshold, so f32 and
 // the f64 referee may legitimately take different branches: the early-stop
 // test (T_k within 1e-3 relative of early_stop), the lattice end (a_K within
-// 1e-5 of t1), an occupancy cell face (within 1e-3 cell), a slab break or a
-// shell radius (within 1e-5). Parity cases compare such rays loosely.
+// 1e-5 of t1), an occupancy cell face between a set and a clear cell (within
+// 1e-4 cell), a slab break or a shell radius (within 1e-5). Parity cases compare such rays loosely.
 const FLAG_UNSTABLE: u32 = 8u;
 
 struct VolParams {
@@ -269,18 +269,34 @@ fn sigma_at(x: vec3<f32>, unstable: ptr<function, bool>) -> f32 {
 
 // ---- occupancy and lattice ----------------------------------------------------
 
+fn occ_bit(c: vec3<u32>) -> bool {
+    let b = (c.z * V.occ_res + c.y) * V.occ_res + c.x;
+    return ((occ[b / 32u] >> (b % 32u)) & 1u) == 1u;
+}
+
+// Whether x's cell may have density (src/volume/occupancy.rs `occupied`);
+// sets *unstable when x is within 1e-4 cell of a face whose neighbour cell
+// has the other bit (f32 and f64 may then pick different cells).
 fn occupied(x: vec3<f32>, unstable: ptr<function, bool>) -> bool {
     let top = f32(V.occ_res - 1u);
     var c: vec3<u32>;
+    var w: vec3<f32>;
     for (var a = 0u; a < 3u; a++) {
-        let w = (x[a] - V.occ_bmin[a]) * V.occ_inv_cell[a];
-        if (abs(w - round(w)) < 1e-3) {
-            *unstable = true;
-        }
-        c[a] = u32(min(max(floor(w), 0.0), top));
+        w[a] = (x[a] - V.occ_bmin[a]) * V.occ_inv_cell[a];
+        c[a] = u32(min(max(floor(w[a]), 0.0), top));
     }
-    let b = (c.z * V.occ_res + c.y) * V.occ_res + c.x;
-    return ((occ[b / 32u] >> (b % 32u)) & 1u) == 1u;
+    let bit = occ_bit(c);
+    for (var a = 0u; a < 3u; a++) {
+        let face = round(w[a]);
+        if (abs(w[a] - face) < 1e-4 && face >= 1.0 && face <= top) {
+            var n = c;
+            n[a] = u32(face) - select(0u, 1u, f32(c[a]) == face);
+            if (occ_bit(n) != bit) {
+                *unstable = true;
+            }
+        }
+    }
+    return bit;
 }
 
 struct Sample {
