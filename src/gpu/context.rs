@@ -106,6 +106,22 @@ pub fn adapters() -> Vec<AdapterSummary> {
         .collect()
 }
 
+/// The GPU block of `hpjudge info --json` and of the scoreboard's
+/// environment: every adapter of the pinned backends, the one the GPU cases
+/// use (`selected`, null when none) and why none could be used (`error`).
+pub fn describe() -> serde_json::Value {
+    let (selected, error) = match GpuContext::get() {
+        Ok(c) => (serde_json::to_value(c.summary()).ok(), None),
+        Err(e) => (None, Some(e.to_string())),
+    };
+    serde_json::json!({
+        "backends": std::env::var("WGPU_BACKEND").unwrap_or_else(|_| "vulkan,metal,dx12".into()),
+        "adapters": adapters(),
+        "selected": selected,
+        "error": error,
+    })
+}
+
 fn type_rank(t: wgpu::DeviceType) -> u8 {
     match t {
         wgpu::DeviceType::DiscreteGpu => 0,
@@ -365,5 +381,20 @@ mod tests {
                 groups_y: 0
             }
         );
+    }
+
+    #[test]
+    fn describe_names_the_selected_adapter_among_the_adapters() {
+        let d = describe();
+        eprintln!("{d}");
+        let adapters = d["adapters"].as_array().unwrap();
+        if d["selected"].is_null() {
+            assert!(
+                d["error"].as_str().unwrap().contains("mesa-vulkan-drivers")
+                    || !adapters.is_empty()
+            );
+        } else {
+            assert!(adapters.contains(&d["selected"]), "{d}");
+        }
     }
 }

@@ -13,4 +13,4 @@ pub mod math;
 pub mod rays;
 pub mod volume;
 
-pub use context::{adapters, AdapterSummary, GpuContext};
+pub use context::{adapters, describe, AdapterSummary, GpuContext};
