@@ -16,15 +16,21 @@ pub fn srgb_encode(x: f64) -> f64 {
     }
 }
 
+/// Whether a tensor name is an image to preview (`rgb`, `image`, `x.rgb`, ...).
+fn is_image_name(name: &str) -> bool {
+    let base = name.rsplit('.').next().unwrap_or(name);
+    matches!(base, "rgb" | "image") || base.ends_with("_rgb") || base.ends_with("_image")
+}
+
 /// Writes `t` as `<dir>/<name>.npy`, plus `<name>.png` when it is an
-/// (H, W, 3) float image. Returns the paths written.
+/// (H, W, 3) float image named like one (`rgb`, `image`). Returns the paths written.
 pub fn write_tensor(dir: &Path, name: &str, t: &Tensor) -> Result<Vec<PathBuf>> {
     let mut written = Vec::new();
     let npy = dir.join(format!("{name}.npy"));
     t.write_npy(&npy)?;
     written.push(npy);
     let s = t.shape();
-    if t.is_float() && s.len() == 3 && s[2] == 3 && s[0] > 0 && s[1] > 0 {
+    if is_image_name(name) && t.is_float() && s.len() == 3 && s[2] == 3 && s[0] > 0 && s[1] > 0 {
         let png = dir.join(format!("{name}.png"));
         write_png(&png, s[0], s[1], &t.to_f64_vec())?;
         written.push(png);

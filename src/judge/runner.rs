@@ -453,30 +453,28 @@ pub fn run(opts: &RunOptions) -> Result<Scoreboard, JudgeInputError> {
         if !entry.results.is_empty() {
             board.cases.push(entry);
         }
-        board.finish();
-        board.write_atomic(&board_path).map_err(|e| {
-            JudgeInputError::new(
-                &board_path.display().to_string(),
-                "",
-                format!("cannot write: {e}"),
-            )
-        })?;
+        save(&mut board, &board_path)?;
     }
     bar.finish_and_clear();
-    board.finish();
-    board.write_atomic(&board_path).map_err(|e| {
-        JudgeInputError::new(
-            &board_path.display().to_string(),
-            "",
-            format!("cannot write: {e}"),
-        )
-    })?;
+    save(&mut board, &board_path)?;
     if let Some(j) = &opts.junit {
         std::fs::write(j, to_junit(&board)).map_err(|e| {
             JudgeInputError::new(&j.display().to_string(), "", format!("cannot write: {e}"))
         })?;
     }
     Ok(board)
+}
+
+/// Finishes the board (sort, summary) and writes it atomically.
+fn save(board: &mut Scoreboard, path: &Path) -> Result<(), JudgeInputError> {
+    board.finish();
+    board.write_atomic(path).map_err(|e| {
+        JudgeInputError::new(
+            &path.display().to_string(),
+            "",
+            format!("cannot write: {e}"),
+        )
+    })
 }
 
 fn print_row(entry: &CaseEntry, r: &BackendResult) {

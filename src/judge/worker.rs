@@ -253,6 +253,20 @@ pub fn run_case(lc: &LoadedCase, backend: BackendKind, env: &WorkerEnv) -> Backe
     if env.bless {
         return bless(res, c, &tensors, env.goldens);
     }
+    if env.dump {
+        for spec in runs.iter().filter(|s| s.scene.is_some()) {
+            let p = dir.join(format!("{}scene.yaml", spec.prefix));
+            let text = spec
+                .scene
+                .as_ref()
+                .map(|d| serde_yaml::to_string(&d.value).unwrap_or_default())
+                .unwrap_or_default();
+            match std::fs::write(&p, text) {
+                Ok(()) => res.artifacts.push(rel(env.out, &p)),
+                Err(e) => return errored(res, format!("cannot write {}: {e}", p.display())),
+            }
+        }
+    }
     let ev = Evidence {
         tensors: &tensors,
         metrics: &metrics,
