@@ -18,7 +18,7 @@ use crate::rays::{clip_aabb, RayGen};
 use crate::real::Real;
 use crate::rng::rand_f64;
 
-use super::field::{ColorField, Field};
+use super::field::Medium;
 use super::integrate::{RayAcc, RayOut};
 use super::occupancy::Occupancy;
 use super::sample::{walk_lattice, March};
@@ -33,8 +33,7 @@ pub fn march_ray<F: Real>(
     t0: F,
     t1: F,
     pixel: u32,
-    field: &Field<F>,
-    color: &ColorField<F>,
+    medium: &Medium<F>,
     m: &March<F>,
     occ: Option<&Occupancy<F>>,
 ) -> (RayOut<F>, u64) {
@@ -44,8 +43,7 @@ pub fn march_ray<F: Real>(
         if tk < m.early_stop {
             return false;
         }
-        let sigma = field.sigma(x);
-        let c = color.color(x);
+        let (sigma, c) = medium.query(x);
         acc.step(tk, sigma, c, t, h);
         true
     });
@@ -97,8 +95,7 @@ fn camera_ray<F: Real>(
 pub fn f_fused<F: Real>(
     cam: &Camera,
     gen: &RayGen,
-    field: &Field<F>,
-    color: &ColorField<F>,
+    medium: &Medium<F>,
     m: &March<F>,
     occ: Option<&Occupancy<F>>,
     budget: &MemBudget,
@@ -123,7 +120,7 @@ pub fn f_fused<F: Real>(
                 }
                 let (o, d, t0, t1, pixel) =
                     camera_ray(&rc, gen, roi.x + ru, roi.y + rv, bmin, bmax);
-                let (r, s) = march_ray(o, d, t0, t1, pixel, field, color, m, occ);
+                let (r, s) = march_ray(o, d, t0, t1, pixel, medium, m, occ);
                 out.push(((rv * roi.width + ru) as usize, r, s, pixel));
             }
         }

@@ -152,8 +152,7 @@ pub fn render<F: Real>(
     let t_all = Instant::now();
     let m = params.march::<F>();
     m.validate()?;
-    let field = params.field.to_real::<F>();
-    let color = params.color.to_real::<F>();
+    let medium = field::Medium::<F>::new(&params.field, &params.color);
     let occ = match params.occupancy {
         0 => None,
         r => Some(Occupancy::<F>::build(&params.field, &gen.aabb, r, budget)?),
@@ -164,7 +163,7 @@ pub fn render<F: Real>(
     let (rays_out, pixel, skipped, samples, integrated) = match chain {
         Chain::Fused => {
             let t = Instant::now();
-            let f = fused::f_fused(cam, gen, &field, &color, &m, occ.as_ref(), budget)?;
+            let f = fused::f_fused(cam, gen, &medium, &m, occ.as_ref(), budget)?;
             tm.fused = t.elapsed().as_secs_f64();
             (f.rays, f.pixel, f.skipped, None, None)
         }
@@ -173,7 +172,7 @@ pub fn render<F: Real>(
             let rays = f_ray::<F>(cam, gen, budget)?;
             tm.ray = t.elapsed().as_secs_f64();
             let t = Instant::now();
-            let s = f_samp(&rays, &field, &color, &m, occ.as_ref(), budget)?;
+            let s = f_samp(&rays, &medium, &m, occ.as_ref(), budget)?;
             tm.samp = t.elapsed().as_secs_f64();
             budget.check(
                 "f_int buffers",

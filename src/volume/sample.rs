@@ -20,7 +20,7 @@ use crate::rays::Rays;
 use crate::real::Real;
 use crate::rng::rand_f64;
 
-use super::field::{ColorField, Field};
+use super::field::Medium;
 use super::occupancy::Occupancy;
 
 /// Largest `max_steps`: keeps `k` exact as an f32.
@@ -208,8 +208,7 @@ struct SampTile<'a, F> {
 /// memory budget before the per-sample allocation.
 pub fn f_samp<F: Real>(
     rays: &Rays<F>,
-    field: &Field<F>,
-    color: &ColorField<F>,
+    medium: &Medium<F>,
     m: &March<F>,
     occ: Option<&Occupancy<F>>,
     budget: &MemBudget,
@@ -312,8 +311,7 @@ pub fn f_samp<F: Real>(
                     tile.ray_id[j] = r as u32;
                     tile.t[j] = t;
                     tile.dt[j] = h;
-                    tile.sigma[j] = field.sigma(x);
-                    tile.color[j] = color.color(x);
+                    (tile.sigma[j], tile.color[j]) = medium.query(x);
                     j += 1;
                     true
                 },
@@ -416,12 +414,13 @@ mod tests {
             t1: vec![1.0, 0.5, 0.25],
             pixel: vec![0, 1, 2],
         };
-        let field = FieldDesc::Analytic(Analytic::Constant { s: 2.0 }).to_real::<f64>();
-        let color = ColorDesc::Constant([1.0, 0.5, 0.25]).to_real::<f64>();
+        let medium = Medium::new(
+            &FieldDesc::Analytic(Analytic::Constant { s: 2.0 }),
+            &ColorDesc::Constant([1.0, 0.5, 0.25]),
+        );
         let s = f_samp(
             &rays,
-            &field,
-            &color,
+            &medium,
             &march(0.1, 100),
             None,
             &MemBudget::fixed(1 << 20),

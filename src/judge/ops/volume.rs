@@ -743,3 +743,220 @@ mod tests {
         assert_eq!(ref_sigma(&f, [1.5, 0.0, 0.0]), 0.0);
     }
 }
+
+#[cfg(test)]
+mod measure {
+    use super::super::BackendKind;
+    use super::*;
+    use crate::budget::MemBudget;
+    use crate::scene::SceneDoc;
+    use std::path::Path;
+
+    fn run(op: &str, scene: &str, sets: &[&str], prec: Precision, params: &str) -> Outputs {
+        let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+        let sets: Vec<String> = sets.iter().map(|s| s.to_string()).collect();
+        let doc = SceneDoc::load(&root.join("TESTS/scenes").join(scene), &sets).unwrap();
+        let params: serde_yaml::Value = serde_yaml::from_str(params).unwrap();
+        let ctx = OpCtx {
+            case_id: "t",
+            scene: Some(&doc),
+            params: &params,
+            backend: BackendKind::Cpu,
+            precision: prec,
+            seed: 0,
+            budget: MemBudget::fixed(1 << 31),
+            dump: false,
+            rays: None,
+            root,
+        };
+        (super::super::find(op).unwrap().run)(&ctx).unwrap()
+    }
+
+    fn diff(a: &Outputs, b: &Outputs, n: &str) -> (f64, f64) {
+        let (x, y) = (a.tensors[n].to_f64_vec(), b.tensors[n].to_f64_vec());
+        let mut abs = 0.0f64;
+        let mut rel = 0.0f64;
+        for (p, q) in x.iter().zip(&y) {
+            abs = abs.max((p - q).abs());
+            rel = rel.max((p - q).abs() / q.abs().max(1e-300));
+        }
+        (abs, rel)
+    }
+
+    #[test]
+    #[ignore]
+    fn print_hard() {
+        let cases: Vec<(&str, Vec<&str>)> = vec![
+            ("tiny", vec!["s=1.0e-7"]),
+            ("long", vec!["s=0.5", "dt=2.0e-5", "max_steps=200000", "early_stop=0", "width=4", "height=4"]),
+            ("long_log", vec!["s=0.5", "dt=2.0e-5", "max_steps=200000", "early_stop=0", "width=4", "height=4", "transmittance=log"]),
+            ("graze", vec!["camera={type: ortho, position: [0, 0, 3], target: [0, 0, 0], half_width: 2, half_height: 2}", "width=2", "height=2"]),
+            ("maxsteps", vec!["max_steps=50", "early_stop=0"]),
+        ];
+        for (name, sets) in cases {
+            let r = run(
+                "volume.reference_quadrature",
+                "vol_constant.yaml",
+                &sets,
+                Precision::F64,
+                "{}",
+            );
+            let o = run(
+                "volume.forward",
+                "vol_constant.yaml",
+                &sets,
+                Precision::F32,
+                "{}",
+            );
+            for n in [
+                "rgb", "trans", "logtrans", "depth", "opacity", "nsamples", "hit",
+            ] {
+                let (a, rl) = diff(&o, &r, n);
+                println!("{name} f32 vs quad {n}: abs {a:.3e} rel {rl:.3e}");
+            }
+            println!("{name} counters {:?}", o.counters);
+        }
+        let sets = [
+            "camera={type: pinhole, position: [0, 1, 3], target: [0, 1, 0], fov_y: 40}",
+            "width=5",
+            "height=5",
+        ];
+        let r = run(
+            "volume.reference_quadrature",
+            "vol_gaussian.yaml",
+            &sets,
+            Precision::F64,
+            "{}",
+        );
+        let o = run(
+            "volume.forward",
+            "vol_gaussian.yaml",
+            &sets,
+            Precision::F32,
+            "{}",
+        );
+        for n in ["rgb", "trans", "logtrans", "nsamples", "hit"] {
+            let (a, rl) = diff(&o, &r, n);
+            println!("pin_graze f32 vs quad {n}: abs {a:.3e} rel {rl:.3e}");
+        }
+        println!("{:?}", o.tensors["hit"]);
+        for prec in [Precision::F32, Precision::F64] {
+            let a = run(
+                "volume.forward",
+                "vol_gaussian.yaml",
+                &["transmittance=log"],
+                prec,
+                "{}",
+            );
+            let b = run("volume.forward", "vol_gaussian.yaml", &[], prec, "{}");
+            for n in ["rgb", "trans", "logtrans", "opacity", "depth"] {
+                let (x, rl) = diff(&a, &b, n);
+                println!("log vs T {prec:?} {n}: abs {x:.3e} rel {rl:.3e}");
+            }
+        }
+        let s = run(
+            "volume.samples",
+            "vol_gaussian.yaml",
+            &["sampling=stratified", "seed=7"],
+            Precision::F32,
+            "{}",
+        );
+        let u = s.tensors["u"].to_f64_vec();
+        println!(
+            "u mean {} n {}",
+            u.iter().sum::<f64>() / u.len() as f64,
+            u.len()
+        );
+    }
+
+    #[test]
+    #[ignore]
+    fn print_errors() {
+        let scenes = [
+            "vol_constant",
+            "vol_slabs",
+            "vol_gaussian",
+            "vol_shell",
+            "vol_grid_gaussian",
+            "vol_linear",
+            "vol_hard_dense",
+        ];
+        for s in scenes {
+            let f = format!("{s}.yaml");
+            let r = run("volume.reference_quadrature", &f, &[], Precision::F64, "{}");
+            for prec in [Precision::F32, Precision::F64] {
+                let o = run("volume.forward", &f, &[], prec, "{}");
+                for n in ["rgb", "trans", "logtrans", "depth", "opacity", "nsamples"] {
+                    let (a, rl) = diff(&o, &r, n);
+                    println!("{s} {prec:?} vs quad {n}: abs {a:.3e} rel {rl:.3e}");
+                }
+            }
+            let o = run(
+                "volume.forward",
+                &f,
+                &["early_stop=0"],
+                Precision::F64,
+                "{}",
+            );
+            let c = run(
+                "volume.closed_form",
+                &f,
+                &["early_stop=0"],
+                Precision::F64,
+                "{}",
+            );
+            for n in ["rgb", "trans", "logtrans", "opacity"] {
+                let (a, rl) = diff(&o, &c, n);
+                println!("{s} f64 es=0 vs closed {n}: abs {a:.3e} rel {rl:.3e}");
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod measure_perf {
+    use super::super::BackendKind;
+    use super::*;
+    use crate::budget::MemBudget;
+    use crate::scene::SceneDoc;
+    use std::path::Path;
+
+    #[test]
+    #[ignore]
+    fn print_perf() {
+        let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+        for sets in [
+            vec![
+                "width=256",
+                "height=256",
+                "field.shape=[128,128,128]",
+                "color.shape=[128,128,128]",
+            ],
+            vec![
+                "width=256",
+                "height=256",
+                "field.shape=[128,128,128]",
+                "color={type: constant, value: [1, 0.5, 0.25]}",
+            ],
+        ] {
+            let sets: Vec<String> = sets.iter().map(|s| s.to_string()).collect();
+            let doc =
+                SceneDoc::load(&root.join("TESTS/scenes/vol_grid_gaussian.yaml"), &sets).unwrap();
+            let params: serde_yaml::Value = serde_yaml::from_str("{repeats: 5}").unwrap();
+            let ctx = OpCtx {
+                case_id: "t",
+                scene: Some(&doc),
+                params: &params,
+                backend: BackendKind::Cpu,
+                precision: Precision::F32,
+                seed: 0,
+                budget: MemBudget::fixed(1 << 31),
+                dump: false,
+                rays: None,
+                root,
+            };
+            let o = op_perf(&ctx).unwrap();
+            println!("{sets:?}\n{:#?}\n{:?}", o.metrics, o.counters);
+        }
+    }
+}
