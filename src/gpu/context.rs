@@ -281,6 +281,15 @@ impl GpuContext {
         Ok(())
     }
 
+    /// Loop iterations one shader invocation may run in total, where the
+    /// driver caps it: Mesa's llvmpipe/lavapipe breaks out of every loop
+    /// after 65535 iterations (gallivm `LP_MAX_TGSI_LOOP_ITERATIONS`,
+    /// measured: a ray of 1e5 lattice points stopped at 13107 = 65535 / 5).
+    /// `None` where no cap is known.
+    pub fn max_loop_iterations(&self) -> Option<u64> {
+        (self.info.driver == "llvmpipe" || self.info.name.starts_with("llvmpipe")).then_some(65_535)
+    }
+
     /// The largest storage buffer one binding may hold, in bytes.
     pub fn max_binding(&self) -> u64 {
         self.limits

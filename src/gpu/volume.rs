@@ -295,6 +295,36 @@ impl FieldBuffers {
     }
 }
 
+/// Loop back-edges `kernels/volume.wgsl` may take per lattice point (the
+/// lattice loop, occupancy's two axis loops, `tri_setup` for density and
+/// colour, the colour channel loop): a bound, for drivers that cap loops.
+const LOOP_ITERS_PER_SAMPLE: u64 = 16;
+
+/// Refuses plans whose longest ray could exceed the driver's loop cap
+/// (see [`GpuContext::max_loop_iterations`]) instead of silently cutting
+/// rays short. The longest ray is bounded by the box diagonal.
+fn check_loop_cap(ctx: &GpuContext, gen: &RayGen, v: &VolumeInput) -> Result<()> {
+    let Some(cap) = ctx.max_loop_iterations() else {
+        return Ok(());
+    };
+    let diag = (0..3)
+        .map(|a| (gen.aabb.max[a] - gen.aabb.min[a]).powi(2))
+        .sum::<f64>()
+        .sqrt();
+    let len = diag.min(gen.far - gen.near);
+    let lattice = ((len / v.dt as f64).ceil() + 1.0).min(v.max_steps as f64) as u64;
+    if lattice * LOOP_ITERS_PER_SAMPLE > cap {
+        return Err(Error::NotSupported(format!(
+            "rays of up to {lattice} lattice points (dt {}, max_steps {}) exceed this driver's loop cap \
+             ({cap} iterations per invocation, Mesa llvmpipe); at most {} points run on it",
+            v.dt,
+            v.max_steps,
+            cap / LOOP_ITERS_PER_SAMPLE
+        )));
+    }
+    Ok(())
+}
+
 /// Per-stage seconds of a GPU render (submit to readback done).
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct GpuTimes {
@@ -323,6 +353,7 @@ pub fn f_fused(
     gen.validate()?;
     cam.validate()?;
     validate(v)?;
+    check_loop_cap(ctx, gen, v)?;
     let n = ray_count(gen)? as u64;
     let out_bytes = n * std::mem::size_of::<GpuRayOut>() as u64;
     budget.check(
@@ -382,6 +413,7 @@ pub fn unfused(
     gen.validate()?;
     cam.validate()?;
     validate(v)?;
+    check_loop_cap(ctx, gen, v)?;
     let n = ray_count(gen)?;
     let ray_bytes = std::mem::size_of::<GpuRayOut>() as u64;
     budget.check(
