@@ -8,8 +8,8 @@
 pub mod camera;
 pub mod pathtrace;
 pub mod rays;
-pub mod volume;
 pub mod transport;
+pub mod volume;
 pub mod voxels;
 
 use std::path::{Path, PathBuf};
