@@ -15,6 +15,7 @@
 pub mod compose;
 pub mod field;
 pub mod fused;
+pub mod gpu;
 pub mod integrate;
 pub mod occupancy;
 pub mod sample;

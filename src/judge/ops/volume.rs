@@ -19,7 +19,9 @@ use std::time::Instant;
 
 use statrs::function::erf::erf;
 
-use super::{OpCtx, OpEntry};
+mod gpu;
+
+use super::{BackendKind, OpCtx, OpEntry};
 use crate::camera::Camera;
 use crate::error::{Error, Result};
 use crate::rays::{f_ray, RayGen};
@@ -171,7 +173,9 @@ fn run_chain<F: Real>(ctx: &OpCtx, chain: Chain, buffers: bool) -> Result<Output
 }
 
 fn op_forward(ctx: &OpCtx) -> Result<Outputs> {
-    ctx.cpu_only()?;
+    if ctx.backend == BackendKind::Gpu {
+        return gpu::run_chain_gpu(ctx, Chain::Fused, compose_param(ctx)?);
+    }
     match ctx.precision {
         Precision::F32 => run_chain::<f32>(ctx, Chain::Fused, false),
         Precision::F64 => run_chain::<f64>(ctx, Chain::Fused, false),
@@ -179,7 +183,9 @@ fn op_forward(ctx: &OpCtx) -> Result<Outputs> {
 }
 
 fn op_unfused(ctx: &OpCtx) -> Result<Outputs> {
-    ctx.cpu_only()?;
+    if ctx.backend == BackendKind::Gpu {
+        return gpu::run_chain_gpu(ctx, Chain::Unfused, compose_param(ctx)?);
+    }
     let buffers = ctx.param_or("buffers", false)?;
     match ctx.precision {
         Precision::F32 => run_chain::<f32>(ctx, Chain::Unfused, buffers),
