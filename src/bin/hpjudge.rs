@@ -252,7 +252,32 @@ fn init_threads(n: usize) {
     }
 }
 
+/// Mesa's Vulkan drivers print an error on every process start when
+/// `XDG_RUNTIME_DIR` is unset; give them a private folder. Runs before any
+/// thread exists.
+fn quiet_mesa() {
+    if std::env::var_os("XDG_RUNTIME_DIR").is_none() {
+        #[cfg(unix)]
+        let uid = {
+            use std::os::unix::fs::MetadataExt;
+            std::fs::metadata("/proc/self").map_or(0, |m| m.uid())
+        };
+        #[cfg(not(unix))]
+        let uid = 0;
+        let dir = std::env::temp_dir().join(format!("hpjudge-xdg-{uid}"));
+        if std::fs::create_dir_all(&dir).is_ok() {
+            #[cfg(unix)]
+            {
+                use std::os::unix::fs::PermissionsExt;
+                let _ = std::fs::set_permissions(&dir, std::fs::Permissions::from_mode(0o700));
+            }
+            std::env::set_var("XDG_RUNTIME_DIR", &dir);
+        }
+    }
+}
+
 fn main() -> ExitCode {
+    quiet_mesa();
     let filter = tracing_subscriber::EnvFilter::try_from_env("HPJUDGE_LOG")
         .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("warn"));
     tracing_subscriber::fmt()
