@@ -35,11 +35,8 @@
 //! descriptors, then the far-pointer slots the block needs) is followed by
 //! the children's own subtrees in child order, so every pointer is forward.
 
-use std::sync::atomic::{AtomicU64, Ordering as AtomicOrdering};
-
 use crate::budget::MemBudget;
 use crate::error::{Error, Result};
-use crate::parallel::par_collect;
 
 use super::shape::{Class, Shape};
 
@@ -132,9 +129,6 @@ struct Builder<'a> {
     depth: u32,
     tmp: Vec<Tmp>,
     max_nodes: u64,
-    /// Nodes allocated by all builders of this build (the root's subtrees
-    /// are built in parallel), checked against `max_nodes`.
-    allocated: &'a AtomicU64,
     leaves: u64,
     solid: u128,
 }
@@ -147,62 +141,34 @@ enum Built {
 }
 
 impl Builder<'_> {
-    /// Low corner of child `c` of the cube at `lo` whose children are `h` wide.
-    fn child_lo(lo: [u32; 3], h: u32, c: u32) -> [u32; 3] {
-        [
-            lo[0] + (c & 1) * h,
-            lo[1] + (c >> 1 & 1) * h,
-            lo[2] + (c >> 2 & 1) * h,
-        ]
-    }
-
-    /// Builds child `c` (at `level + 1`) of the cube at `lo`, `size` wide.
-    fn child(&mut self, level: u32, lo: [u32; 3], size: u32, c: u32) -> Result<Built> {
-        let h = size / 2;
-        let clo = Self::child_lo(lo, h, c);
-        let class = if level + 1 == self.depth {
-            if self.shape.solid(self.depth, clo) {
-                Class::Full
-            } else {
-                Class::Empty
-            }
-        } else {
-            self.shape.classify(self.depth, clo, h)
-        };
-        match class {
-            Class::Empty => Ok(Built::Empty),
-            Class::Full => Ok(Built::Full),
-            Class::Mixed => self.node(level + 1, clo, h),
-        }
-    }
-
     /// Builds the node whose cube (at `level`, `size` voxels wide) has low
     /// corner `lo` and is known to be Mixed.
     fn node(&mut self, level: u32, lo: [u32; 3], size: u32) -> Result<Built> {
-        let mut kids = [
-            Built::Empty,
-            Built::Empty,
-            Built::Empty,
-            Built::Empty,
-            Built::Empty,
-            Built::Empty,
-            Built::Empty,
-            Built::Empty,
-        ];
-        for c in 0..8u32 {
-            kids[c as usize] = self.child(level, lo, size, c)?;
-        }
-        self.assemble(level, kids)
-    }
-
-    /// Combines the eight children of a node at `level` into the node
-    /// (appending its children block), or collapses it when uniform.
-    fn assemble(&mut self, level: u32, built: [Built; 8]) -> Result<Built> {
+        let h = size / 2;
         let mut kids = [Tmp::default(); 8];
         let (mut nk, mut valid, mut nonleaf) = (0usize, 0u8, 0u8);
         let (mut full_leaves, mut leaf_voxels) = (0u32, 0u128);
-        for (c, b) in built.into_iter().enumerate() {
-            match b {
+        for c in 0..8u32 {
+            let clo = [
+                lo[0] + (c & 1) * h,
+                lo[1] + (c >> 1 & 1) * h,
+                lo[2] + (c >> 2 & 1) * h,
+            ];
+            let class = if level + 1 == self.depth {
+                if self.shape.solid(self.depth, clo) {
+                    Class::Full
+                } else {
+                    Class::Empty
+                }
+            } else {
+                self.shape.classify(self.depth, clo, h)
+            };
+            let built = match class {
+                Class::Empty => Built::Empty,
+                Class::Full => Built::Full,
+                Class::Mixed => self.node(level + 1, clo, h)?,
+            };
+            match built {
                 Built::Empty => {}
                 Built::Full => {
                     valid |= 1 << c;
@@ -227,11 +193,10 @@ impl Builder<'_> {
         self.leaves += full_leaves as u64;
         self.solid += leaf_voxels;
         let first = self.tmp.len() as u64;
-        let total = self.allocated.fetch_add(nk as u64, AtomicOrdering::Relaxed) + nk as u64;
-        if total > self.max_nodes {
+        if (first + nk as u64) > self.max_nodes {
             return Err(Error::OutOfMemory {
                 what: "voxel octree build".into(),
-                needed: total.saturating_mul(BUILD_BYTES_PER_NODE),
+                needed: (first + nk as u64).saturating_mul(BUILD_BYTES_PER_NODE),
                 budget: self.max_nodes.saturating_mul(BUILD_BYTES_PER_NODE),
             });
         }
@@ -241,56 +206,6 @@ impl Builder<'_> {
             nonleaf,
             first: first as u32,
         }))
-    }
-
-    /// The root (a Mixed cube at level 0), its eight subtrees built in
-    /// parallel by separate builders and appended in child order, so the
-    /// result is the same as the serial build's, whatever the thread count.
-    fn root_parallel(&mut self) -> Result<Built> {
-        let size = 1u32 << self.depth;
-        let (shape, depth, max_nodes, allocated) =
-            (self.shape, self.depth, self.max_nodes, self.allocated);
-        let parts = par_collect("voxels.build", 8, |c| {
-            let mut b = Builder {
-                shape,
-                depth,
-                allocated,
-                tmp: Vec::new(),
-                max_nodes,
-                leaves: 0,
-                solid: 0,
-            };
-            let r = b.child(0, [0; 3], size, c as u32);
-            (r, b)
-        });
-        let mut kids = [
-            Built::Empty,
-            Built::Empty,
-            Built::Empty,
-            Built::Empty,
-            Built::Empty,
-            Built::Empty,
-            Built::Empty,
-            Built::Empty,
-        ];
-        for (c, (r, b)) in parts.into_iter().enumerate() {
-            let r = r?;
-            let off = self.tmp.len() as u32;
-            self.tmp.extend(b.tmp.iter().map(|t| Tmp {
-                first: t.first + off,
-                ..*t
-            }));
-            self.leaves += b.leaves;
-            self.solid += b.solid;
-            kids[c] = match r {
-                Built::Node(t) => Built::Node(Tmp {
-                    first: t.first + off,
-                    ..t
-                }),
-                other => other,
-            };
-        }
-        self.assemble(0, kids)
     }
 }
 
@@ -322,11 +237,9 @@ pub fn build(shape: &Shape, depth: u32, budget: &MemBudget) -> Result<Octree> {
     shape.validate(depth)?;
     let t0 = std::time::Instant::now();
     let size = 1u32 << depth;
-    let allocated = AtomicU64::new(0);
     let mut b = Builder {
         shape,
         depth,
-        allocated: &allocated,
         tmp: Vec::new(),
         max_nodes: (budget.bytes / BUILD_BYTES_PER_NODE).min(u32::MAX as u64 / 2),
         leaves: 0,
@@ -335,7 +248,7 @@ pub fn build(shape: &Shape, depth: u32, budget: &MemBudget) -> Result<Octree> {
     let root = match shape.classify(depth, [0; 3], size) {
         Class::Empty => Built::Empty,
         Class::Full => Built::Full,
-        Class::Mixed => b.root_parallel()?,
+        Class::Mixed => b.node(0, [0; 3], size)?,
     };
     let root = match root {
         Built::Empty => Tmp::default(),
