@@ -140,6 +140,35 @@ pub struct Render<F> {
     pub integrated: Option<Integrated<F>>,
 }
 
+/// A render plan's fields and parameters in precision `F`, built once
+/// (grid conversion, colour packing, occupancy bits) and reused by every
+/// frame that renders it.
+#[derive(Clone, Debug)]
+pub struct Prepared<F> {
+    pub medium: field::Medium<F>,
+    pub occ: Option<Occupancy<F>>,
+    pub march: March<F>,
+}
+
+/// Builds the [`Prepared`] plan of `params` for the world box `aabb`.
+pub fn prepare<F: Real>(
+    params: &VolumeParams,
+    aabb: &crate::rays::Aabb,
+    budget: &MemBudget,
+) -> Result<Prepared<F>> {
+    let march = params.march::<F>();
+    march.validate()?;
+    let occ = match params.occupancy {
+        0 => None,
+        r => Some(Occupancy::<F>::build(&params.field, aabb, r, budget)?),
+    };
+    Ok(Prepared {
+        medium: field::Medium::<F>::new(&params.field, &params.color),
+        occ,
+        march,
+    })
+}
+
 /// Renders `params` through `cam` / `gen` with the fused or unfused chain.
 pub fn render<F: Real>(
     cam: &Camera,
@@ -150,38 +179,42 @@ pub fn render<F: Real>(
     budget: &MemBudget,
 ) -> Result<Render<F>> {
     let t_all = Instant::now();
-    let m = params.march::<F>();
-    m.validate()?;
-    let medium = field::Medium::<F>::new(&params.field, &params.color);
-    let occ = match params.occupancy {
-        0 => None,
-        r => Some(Occupancy::<F>::build(&params.field, &gen.aabb, r, budget)?),
-    };
+    let prep = prepare::<F>(params, &gen.aabb, budget)?;
+    let mut r = render_prepared(cam, gen, &prep, chain, compose, budget)?;
+    r.timings.total = t_all.elapsed().as_secs_f64();
+    Ok(r)
+}
+
+/// Renders a [`Prepared`] plan (one frame).
+pub fn render_prepared<F: Real>(
+    cam: &Camera,
+    gen: &RayGen,
+    prep: &Prepared<F>,
+    chain: Chain,
+    compose: Compose,
+    budget: &MemBudget,
+) -> Result<Render<F>> {
+    let t_all = Instant::now();
+    let m = prep.march;
+    let occ = prep.occ.as_ref();
     let roi = gen.region();
     let region = (roi.x, roi.y, roi.width, roi.height);
     let mut tm = Timings::default();
     let (rays_out, pixel, skipped, samples, integrated) = match chain {
         Chain::Fused => {
             let t = Instant::now();
-            let f = fused::f_fused(cam, gen, &medium, &m, occ.as_ref(), budget)?;
+            let f = fused::f_fused(cam, gen, &prep.medium, &m, occ, budget)?;
             tm.fused = t.elapsed().as_secs_f64();
             (f.rays, f.pixel, f.skipped, None, None)
         }
         Chain::Unfused => {
             let t = Instant::now();
             let rays = f_ray::<F>(cam, gen, budget)?;
-            tm.ray = t.elapsed().as_secs_f64();
-            let t = Instant::now();
-            let s = f_samp(&rays, &medium, &m, occ.as_ref(), budget)?;
-            tm.samp = t.elapsed().as_secs_f64();
-            budget.check(
-                "f_int buffers",
-                bytes_for(s.len() as u64, Integrated::<F>::BYTES_PER_SAMPLE),
-            )?;
-            let t = Instant::now();
-            let it = f_int(&s, &m);
-            tm.int = t.elapsed().as_secs_f64();
-            (it.rays.clone(), rays.pixel, s.skipped, Some(s), Some(it))
+            let ray_s = t.elapsed().as_secs_f64();
+            let mut r = render_rays(&rays, gen, prep, compose, budget)?;
+            r.timings.ray = ray_s;
+            r.timings.total = t_all.elapsed().as_secs_f64();
+            return Ok(r);
         }
     };
     let t = Instant::now();
@@ -194,6 +227,52 @@ pub fn render<F: Real>(
         timings: tm,
         samples,
         integrated,
+    })
+}
+
+/// The unfused chain on given rays (camera rays, or rays replayed from a
+/// `--dump-failing` file): `f_samp` -> `f_int` -> `f_img` into the region of
+/// `gen` (ray pixel ids index the full `gen.width`-wide image).
+pub fn render_rays<F: Real>(
+    rays: &crate::rays::Rays<F>,
+    gen: &RayGen,
+    prep: &Prepared<F>,
+    compose: Compose,
+    budget: &MemBudget,
+) -> Result<Render<F>> {
+    let t_all = Instant::now();
+    let m = prep.march;
+    let roi = gen.region();
+    let mut tm = Timings::default();
+    let t = Instant::now();
+    let s = f_samp(rays, &prep.medium, &m, prep.occ.as_ref(), budget)?;
+    tm.samp = t.elapsed().as_secs_f64();
+    budget.check(
+        "f_int buffers",
+        bytes_for(s.len() as u64, Integrated::<F>::BYTES_PER_SAMPLE),
+    )?;
+    let t = Instant::now();
+    let it = f_int(&s, &m);
+    tm.int = t.elapsed().as_secs_f64();
+    let t = Instant::now();
+    let region = (roi.x, roi.y, roi.width, roi.height);
+    let image = f_img(
+        &it.rays,
+        &rays.pixel,
+        gen.width,
+        region,
+        m.background,
+        compose,
+    )?;
+    tm.img = t.elapsed().as_secs_f64();
+    tm.total = t_all.elapsed().as_secs_f64();
+    let counters = Counters::of(&it.rays, s.skipped);
+    Ok(Render {
+        image,
+        counters,
+        timings: tm,
+        samples: Some(s),
+        integrated: Some(it),
     })
 }
 

@@ -8,6 +8,7 @@
 //! | `volume.samples` | f_samp outputs: off, ray_id, t, dt, sigma, u (stratified offsets), m |
 //! | `volume.reference_quadrature` | the discrete midpoint/stratified quadrature, f64, written here independently |
 //! | `volume.closed_form` | continuum transmittance of the analytic field (constant, slabs, gaussian via erf, shell chord, linear) |
+//! | `volume.grid_probe` / `_reference` | a density grid at seeded points in and out of the box, ours vs an independent trilinear (OOB zero / clamp) |
 //! | `volume.perf` | fused vs unfused: samples/s, integrated_samples/s, pixels/s, fused_speedup |
 //! | `volume.dt_sweep` | seconds and max error vs the closed form for each dt in `params.dts`, f32 and f64 |
 //!
@@ -23,7 +24,7 @@ mod gpu;
 use super::{BackendKind, OpCtx, OpEntry};
 use crate::camera::Camera;
 use crate::error::{Error, Result};
-use crate::rays::{f_ray, RayGen};
+use crate::rays::{f_ray, RayGen, Rays};
 use crate::real::{Precision, Real};
 use crate::rng::rand_f64;
 use crate::scene::volume::FieldSpec;
@@ -31,7 +32,7 @@ use crate::tensor::{Outputs, Tensor};
 use crate::volume::compose::{Compose, Image};
 use crate::volume::field::{Analytic, ColorDesc, FieldDesc, GridDesc, Oob};
 use crate::volume::sample::{Sampling, TransPath};
-use crate::volume::{render, Chain, Render, VolumeParams};
+use crate::volume::{prepare, render, render_prepared, render_rays, Chain, Render, VolumeParams};
 
 const RENDER_PARAMS: &[&str] = &["compose"];
 
@@ -71,6 +72,18 @@ pub const OPS: &[OpEntry] = &[
         doc: "continuum closed forms of trans, logtrans, opacity, rgb for analytic fields (and grids sampled from them)",
         params: &[],
         run: op_closed_form,
+    },
+    OpEntry {
+        name: "volume.grid_probe",
+        doc: "the scene's density grid at params.n seeded points in [-1.5, 1.5]^3 (in and out of the box): value",
+        params: &["n", "seed"],
+        run: op_grid_probe,
+    },
+    OpEntry {
+        name: "volume.grid_probe_reference",
+        doc: "the same points through the independent f64 trilinear reference: value, inside",
+        params: &["n", "seed"],
+        run: op_grid_probe_reference,
     },
     OpEntry {
         name: "volume.perf",
@@ -137,9 +150,21 @@ fn render_outputs<F: Real>(r: &Render<F>, out: &mut Outputs) -> Result<()> {
 
 fn run_chain<F: Real>(ctx: &OpCtx, chain: Chain, buffers: bool) -> Result<Outputs> {
     let (cam, gen, p, _) = load(ctx)?;
-    let r = render::<F>(&cam, &gen, &p, chain, compose_param(ctx)?, &ctx.budget)?;
+    let compose = compose_param(ctx)?;
+    let r = match ctx.rays {
+        // `render --rays FILE`: replay dumped rays through the unfused chain.
+        Some(t) => {
+            let rays = Rays::<F>::from_tensor(t, "--rays")?;
+            let prep = prepare::<F>(&p, &gen.aabb, &ctx.budget)?;
+            render_rays(&rays, &gen, &prep, compose, &ctx.budget)?
+        }
+        None => render::<F>(&cam, &gen, &p, chain, compose, &ctx.budget)?,
+    };
     let mut out = Outputs::default();
     render_outputs(&r, &mut out)?;
+    if ctx.dump && ctx.rays.is_none() {
+        out.tensor("rays", f_ray::<F>(&cam, &gen, &ctx.budget)?.to_tensor());
+    }
     if let (true, Some(s), Some(it)) = (buffers, &r.samples, &r.integrated) {
         let m = [s.len()];
         out.tensor(
@@ -320,9 +345,21 @@ fn ref_color(c: &ColorDesc, x: [f64; 3]) -> [f64; 3] {
 
 fn op_reference(ctx: &OpCtx) -> Result<Outputs> {
     let (cam, gen, p, _) = load(ctx)?;
-    let rays = f_ray::<f64>(&cam, &gen, &ctx.budget)?;
+    let rays = match ctx.rays {
+        Some(t) => Rays::<f64>::from_tensor(t, "--rays")?,
+        None => f_ray::<f64>(&cam, &gen, &ctx.budget)?,
+    };
     let roi = gen.region();
     let n = rays.len();
+    if n != roi.width as usize * roi.height as usize {
+        return Err(Error::invalid(
+            "--rays",
+            format!(
+                "{n} rays for a {}x{} region: the reference needs one ray per pixel",
+                roi.width, roi.height
+            ),
+        ));
+    }
     let (mut rgb, mut trans, mut logt, mut depth, mut opac, mut ns, mut hit) = (
         vec![[0.0; 3]; n],
         vec![0.0; n],
@@ -383,6 +420,63 @@ fn op_reference(ctx: &OpCtx) -> Result<Outputs> {
     out.tensor("opacity", Tensor::real(&s, opac)?);
     out.tensor("nsamples", Tensor::from_shape_vec(&s, ns)?);
     out.tensor("hit", Tensor::from_shape_vec(&s, hit)?);
+    Ok(out)
+}
+
+/// The probe points (f64) and the scene's grid.
+fn probe_setup(ctx: &OpCtx) -> Result<(Vec<[f64; 3]>, GridDesc)> {
+    let (_, _, p, _) = load(ctx)?;
+    let FieldDesc::Grid(g) = p.field else {
+        return Err(Error::invalid(
+            ctx.case_id,
+            "grid_probe needs a scene whose field is a grid",
+        ));
+    };
+    let n: u32 = ctx.param_or("n", 4096)?;
+    let seed: u32 = ctx.param_or("seed", 1)?;
+    if n == 0 || n > 1 << 22 {
+        return Err(Error::invalid(
+            format!("{} params.n", ctx.case_id),
+            "must be in 1..=4194304",
+        ));
+    }
+    let pts = (0..n)
+        .map(|i| [0, 1, 2].map(|d| rand_f64(seed, i, 0, d) * 3.0 - 1.5))
+        .collect();
+    Ok((pts, g))
+}
+
+fn grid_probe_in<F: Real>(pts: &[[f64; 3]], g: &GridDesc) -> Result<Tensor> {
+    let grid = crate::volume::field::Grid::<F>::from_desc(g);
+    let v: Vec<F> = pts
+        .iter()
+        .map(|x| grid.trilinear::<1>(x.map(F::of))[0])
+        .collect();
+    Tensor::real(&[pts.len()], v)
+}
+
+fn op_grid_probe(ctx: &OpCtx) -> Result<Outputs> {
+    ctx.cpu_only()?;
+    let (pts, g) = probe_setup(ctx)?;
+    let mut out = Outputs::default();
+    let t = match ctx.precision {
+        Precision::F32 => grid_probe_in::<f32>(&pts, &g)?,
+        Precision::F64 => grid_probe_in::<f64>(&pts, &g)?,
+    };
+    out.tensor("value", t);
+    Ok(out)
+}
+
+fn op_grid_probe_reference(ctx: &OpCtx) -> Result<Outputs> {
+    let (pts, g) = probe_setup(ctx)?;
+    let v: Vec<f64> = pts.iter().map(|&x| ref_grid(&g, x, 0)).collect();
+    let inside: Vec<u8> = pts
+        .iter()
+        .map(|x| (0..3).all(|a| x[a] >= g.bmin[a] && x[a] <= g.bmax[a]) as u8)
+        .collect();
+    let mut out = Outputs::default();
+    out.tensor("value", Tensor::real(&[pts.len()], v)?);
+    out.tensor("inside", Tensor::from_shape_vec(&[pts.len()], inside)?);
     Ok(out)
 }
 
@@ -593,11 +687,28 @@ fn perf_in<F: Real>(ctx: &OpCtx) -> Result<Outputs> {
     let (mut cpu_fused, mut cpu_unfused) = (0.0, 0.0);
     let mut samples = 0;
     let mut last = None;
+    // The plan (grid conversion, colour packing) is built once, as a
+    // training loop would; each repeat renders one frame with each chain.
+    let prep = prepare::<F>(&p, &gen.aabb, &ctx.budget)?;
     for _ in 0..repeats {
         let c0 = process_cpu_s();
-        let f = render::<F>(&cam, &gen, &p, Chain::Fused, Compose::Sorted, &ctx.budget)?;
+        let f = render_prepared(
+            &cam,
+            &gen,
+            &prep,
+            Chain::Fused,
+            Compose::Sorted,
+            &ctx.budget,
+        )?;
         let c1 = process_cpu_s();
-        let u = render::<F>(&cam, &gen, &p, Chain::Unfused, Compose::Sorted, &ctx.budget)?;
+        let u = render_prepared(
+            &cam,
+            &gen,
+            &prep,
+            Chain::Unfused,
+            Compose::Sorted,
+            &ctx.budget,
+        )?;
         let c2 = process_cpu_s();
         if let (Some(c0), Some(c1), Some(c2)) = (c0, c1, c2) {
             cpu_fused += c1 - c0;
@@ -635,8 +746,8 @@ fn perf_in<F: Real>(ctx: &OpCtx) -> Result<Outputs> {
     out.metric("pixels_per_s", pixels / tg.max(1e-12));
     out.metric("fused_speedup", tu / tf);
     out.metric("threads", rayon::current_num_threads() as f64);
-    // Whole renders (field conversion included) per CPU second: the speed of
-    // the code on a core it has to itself, whatever else the machine runs.
+    // Frames per CPU second (ray generation to image): the speed of the code
+    // on a core it has to itself, whatever else the machine runs.
     if cpu_fused > 0.0 && cpu_unfused > 0.0 {
         out.metric(
             "samples_per_cpu_s",
@@ -842,263 +953,5 @@ mod tests {
         assert_eq!(ref_sigma(&f, [1.0, 0.0, 0.0]), 1.0);
         assert_eq!(ref_sigma(&f, [-1.0, 0.0, 0.0]), 0.5);
         assert_eq!(ref_sigma(&f, [1.5, 0.0, 0.0]), 0.0);
-    }
-}
-
-#[cfg(test)]
-mod measure {
-    use super::super::BackendKind;
-    use super::*;
-    use crate::budget::MemBudget;
-    use crate::scene::SceneDoc;
-    use std::path::Path;
-
-    fn run(op: &str, scene: &str, sets: &[&str], prec: Precision, params: &str) -> Outputs {
-        let root = Path::new(env!("CARGO_MANIFEST_DIR"));
-        let sets: Vec<String> = sets.iter().map(|s| s.to_string()).collect();
-        let doc = SceneDoc::load(&root.join("TESTS/scenes").join(scene), &sets).unwrap();
-        let params: serde_yaml::Value = serde_yaml::from_str(params).unwrap();
-        let ctx = OpCtx {
-            case_id: "t",
-            scene: Some(&doc),
-            params: &params,
-            backend: BackendKind::Cpu,
-            precision: prec,
-            seed: 0,
-            budget: MemBudget::fixed(1 << 31),
-            dump: false,
-            rays: None,
-            root,
-        };
-        (super::super::find(op).unwrap().run)(&ctx).unwrap()
-    }
-
-    fn diff(a: &Outputs, b: &Outputs, n: &str) -> (f64, f64) {
-        let (x, y) = (a.tensors[n].to_f64_vec(), b.tensors[n].to_f64_vec());
-        let mut abs = 0.0f64;
-        let mut rel = 0.0f64;
-        for (p, q) in x.iter().zip(&y) {
-            abs = abs.max((p - q).abs());
-            rel = rel.max((p - q).abs() / q.abs().max(1e-300));
-        }
-        (abs, rel)
-    }
-
-    #[test]
-    #[ignore]
-    fn print_hard() {
-        let cases: Vec<(&str, Vec<&str>)> = vec![
-            ("tiny", vec!["s=1.0e-7"]),
-            ("long", vec!["s=0.5", "dt=2.0e-5", "max_steps=200000", "early_stop=0", "width=4", "height=4"]),
-            ("long_log", vec!["s=0.5", "dt=2.0e-5", "max_steps=200000", "early_stop=0", "width=4", "height=4", "transmittance=log"]),
-            ("graze", vec!["camera={type: ortho, position: [0, 0, 3], target: [0, 0, 0], half_width: 2, half_height: 2}", "width=2", "height=2"]),
-            ("maxsteps", vec!["max_steps=50", "early_stop=0"]),
-        ];
-        for (name, sets) in cases {
-            let r = run(
-                "volume.reference_quadrature",
-                "vol_constant.yaml",
-                &sets,
-                Precision::F64,
-                "{}",
-            );
-            let o = run(
-                "volume.forward",
-                "vol_constant.yaml",
-                &sets,
-                Precision::F32,
-                "{}",
-            );
-            for n in [
-                "rgb", "trans", "logtrans", "depth", "opacity", "nsamples", "hit",
-            ] {
-                let (a, rl) = diff(&o, &r, n);
-                println!("{name} f32 vs quad {n}: abs {a:.3e} rel {rl:.3e}");
-            }
-            println!("{name} counters {:?}", o.counters);
-        }
-        let sets = [
-            "camera={type: pinhole, position: [0, 1, 3], target: [0, 1, 0], fov_y: 40}",
-            "width=5",
-            "height=5",
-        ];
-        let r = run(
-            "volume.reference_quadrature",
-            "vol_gaussian.yaml",
-            &sets,
-            Precision::F64,
-            "{}",
-        );
-        let o = run(
-            "volume.forward",
-            "vol_gaussian.yaml",
-            &sets,
-            Precision::F32,
-            "{}",
-        );
-        for n in ["rgb", "trans", "logtrans", "nsamples", "hit"] {
-            let (a, rl) = diff(&o, &r, n);
-            println!("pin_graze f32 vs quad {n}: abs {a:.3e} rel {rl:.3e}");
-        }
-        println!("{:?}", o.tensors["hit"]);
-        for prec in [Precision::F32, Precision::F64] {
-            let a = run(
-                "volume.forward",
-                "vol_gaussian.yaml",
-                &["transmittance=log"],
-                prec,
-                "{}",
-            );
-            let b = run("volume.forward", "vol_gaussian.yaml", &[], prec, "{}");
-            for n in ["rgb", "trans", "logtrans", "opacity", "depth"] {
-                let (x, rl) = diff(&a, &b, n);
-                println!("log vs T {prec:?} {n}: abs {x:.3e} rel {rl:.3e}");
-            }
-        }
-        let s = run(
-            "volume.samples",
-            "vol_gaussian.yaml",
-            &["sampling=stratified", "seed=7"],
-            Precision::F32,
-            "{}",
-        );
-        let u = s.tensors["u"].to_f64_vec();
-        println!(
-            "u mean {} n {}",
-            u.iter().sum::<f64>() / u.len() as f64,
-            u.len()
-        );
-    }
-
-    #[test]
-    #[ignore]
-    fn print_errors() {
-        let scenes = [
-            "vol_constant",
-            "vol_slabs",
-            "vol_gaussian",
-            "vol_shell",
-            "vol_grid_gaussian",
-            "vol_linear",
-            "vol_hard_dense",
-        ];
-        for s in scenes {
-            let f = format!("{s}.yaml");
-            let r = run("volume.reference_quadrature", &f, &[], Precision::F64, "{}");
-            for prec in [Precision::F32, Precision::F64] {
-                let o = run("volume.forward", &f, &[], prec, "{}");
-                for n in ["rgb", "trans", "logtrans", "depth", "opacity", "nsamples"] {
-                    let (a, rl) = diff(&o, &r, n);
-                    println!("{s} {prec:?} vs quad {n}: abs {a:.3e} rel {rl:.3e}");
-                }
-            }
-            let o = run(
-                "volume.forward",
-                &f,
-                &["early_stop=0"],
-                Precision::F64,
-                "{}",
-            );
-            let c = run(
-                "volume.closed_form",
-                &f,
-                &["early_stop=0"],
-                Precision::F64,
-                "{}",
-            );
-            for n in ["rgb", "trans", "logtrans", "opacity"] {
-                let (a, rl) = diff(&o, &c, n);
-                println!("{s} f64 es=0 vs closed {n}: abs {a:.3e} rel {rl:.3e}");
-            }
-        }
-    }
-}
-
-#[cfg(test)]
-mod measure_perf {
-    use super::super::BackendKind;
-    use super::*;
-    use crate::budget::MemBudget;
-    use crate::scene::SceneDoc;
-    use std::path::Path;
-
-    #[test]
-    #[ignore]
-    fn print_perf() {
-        let root = Path::new(env!("CARGO_MANIFEST_DIR"));
-        for sets in [
-            vec![
-                "width=256",
-                "height=256",
-                "field.shape=[128,128,128]",
-                "color.shape=[128,128,128]",
-            ],
-            vec![
-                "width=256",
-                "height=256",
-                "field.shape=[128,128,128]",
-                "color={type: constant, value: [1, 0.5, 0.25]}",
-            ],
-        ] {
-            let sets: Vec<String> = sets.iter().map(|s| s.to_string()).collect();
-            let doc =
-                SceneDoc::load(&root.join("TESTS/scenes/vol_grid_gaussian.yaml"), &sets).unwrap();
-            let params: serde_yaml::Value = serde_yaml::from_str("{repeats: 5}").unwrap();
-            let ctx = OpCtx {
-                case_id: "t",
-                scene: Some(&doc),
-                params: &params,
-                backend: BackendKind::Cpu,
-                precision: Precision::F32,
-                seed: 0,
-                budget: MemBudget::fixed(1 << 31),
-                dump: false,
-                rays: None,
-                root,
-            };
-            let o = op_perf(&ctx).unwrap();
-            println!("{sets:?}\n{:#?}\n{:?}", o.metrics, o.counters);
-        }
-    }
-}
-#[cfg(test)]
-mod probe {
-    use super::*;
-    #[test]
-    #[ignore]
-    fn tau_hist() {
-        let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
-        let sets: Vec<String> = [
-            "width=64",
-            "height=64",
-            "field.shape=[128,128,128]",
-            "color.shape=[128,128,128]",
-        ]
-        .iter()
-        .map(|s| s.to_string())
-        .collect();
-        let doc =
-            crate::scene::SceneDoc::load(&root.join("TESTS/scenes/vol_grid_gaussian.yaml"), &sets)
-                .unwrap();
-        let sc = crate::scene::volume::parse(&doc).unwrap();
-        let (cam, gen, p) = sc.build(&doc).unwrap();
-        let r = render::<f32>(
-            &cam,
-            &gen,
-            &p,
-            Chain::Unfused,
-            Compose::Sorted,
-            &crate::budget::MemBudget::fixed(1 << 31),
-        )
-        .unwrap();
-        let s = r.samples.unwrap();
-        let big = s
-            .sigma
-            .iter()
-            .zip(&s.dt)
-            .filter(|(a, b)| **a * **b >= 0.25)
-            .count();
-        let mx = s.sigma.iter().cloned().fold(0.0f32, f32::max);
-        println!("n {} big {} max sigma {}", s.len(), big, mx);
     }
 }
