@@ -147,14 +147,34 @@ impl<F: CastReal> CastHit<F> {
     }
 }
 
-#[inline]
-fn min3<F: Real>(a: [F; 3]) -> F {
-    a[0].min(a[1]).min(a[2])
+// Plain comparisons (no NaN handling: no NaN reaches the loop, directions
+// are clamped away from zero), which compile to single min/max instructions.
+#[inline(always)]
+fn fmin<F: Real>(a: F, b: F) -> F {
+    if a < b {
+        a
+    } else {
+        b
+    }
 }
 
-#[inline]
+#[inline(always)]
+fn fmax<F: Real>(a: F, b: F) -> F {
+    if a > b {
+        a
+    } else {
+        b
+    }
+}
+
+#[inline(always)]
+fn min3<F: Real>(a: [F; 3]) -> F {
+    fmin(fmin(a[0], a[1]), a[2])
+}
+
+#[inline(always)]
 fn max3<F: Real>(a: [F; 3]) -> F {
-    a[0].max(a[1]).max(a[2])
+    fmax(fmax(a[0], a[1]), a[2])
 }
 
 /// Casts the ray `o + t d`, t in `[near, far]`, through the octree `nodes`
@@ -244,7 +264,7 @@ pub fn cast<F: CastReal>(
                 }
             }
             // INTERSECT
-            let tv_max = t_max.min(tc_max);
+            let tv_max = fmin(t_max, tc_max);
             let halfs = scale_exp2 * half;
             let tcen = [0, 1, 2].map(|a| halfs * coef[a] + tc[a]);
             if t_min <= tv_max {

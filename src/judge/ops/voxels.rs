@@ -434,6 +434,10 @@ fn bench_in<F: CastReal>(ctx: &OpCtx, sc: &VoxelScene, tree: &Octree) -> Result<
     let mut out = Outputs::default();
     out.metric("threads", threads);
     build_metrics(&mut out, tree);
+    ctx.budget.check(
+        "voxels.bench rays and results",
+        bytes_for(count as u64 + size as u64 * size as u64, 160),
+    )?;
     let coherent = camera_batch::<F>(ctx, sc, Some(size))?;
     let (io, id) = from64::<F>(incoherent(count, seed));
     let inc = Batch {
