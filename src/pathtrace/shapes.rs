@@ -36,9 +36,10 @@ pub struct Quad {
     pub corner: Vec3A,
     pub u: Vec3A,
     pub v: Vec3A,
-    /// `u x v / |u x v|^2`: dotted with a vector in the plane it gives the
-    /// barycentric-like coordinates (Cramer's rule for the 2x2 system).
-    w: Vec3A,
+    /// Dual edge vectors: for `h` in the plane, `a = h . ua`, `b = h . vb`
+    /// (`ua = (v x n) / (u . (v x n))`, `vb = (n x u) / (v . (n x u))`).
+    ua: Vec3A,
+    vb: Vec3A,
     normal: Vec3A,
     area: f32,
 }
@@ -52,12 +53,19 @@ impl Quad {
         if !(nn > 0.0 && nn.is_finite() && corner.is_finite()) {
             return None;
         }
+        let normal = n / nn.sqrt();
+        let (vn, nu) = (v.cross(normal), normal.cross(u));
+        let (ua, vb) = (vn / u.dot(vn), nu / v.dot(nu));
+        if !(ua.is_finite() && vb.is_finite()) {
+            return None;
+        }
         Some(Quad {
             corner,
             u,
             v,
-            w: n / nn,
-            normal: n / nn.sqrt(),
+            ua,
+            vb,
+            normal,
             area: nn.sqrt(),
         })
     }
@@ -122,13 +130,17 @@ impl Shape {
 pub fn sphere_t(s: &Sphere, o: Vec3A, d: Vec3A, tmax: f32) -> Option<f32> {
     let f = o - s.centre;
     let b = -f.dot(d);
-    let l = f + b * d;
     let r2 = s.radius * s.radius;
+    let c = f.length_squared() - r2;
+    // Origin outside and sphere behind: both roots negative.
+    if c > 0.0 && b < 0.0 {
+        return None;
+    }
+    let l = f + b * d;
     let disc = r2 - l.length_squared();
     if disc < 0.0 {
         return None;
     }
-    let c = f.length_squared() - r2;
     let q = b + disc.sqrt().copysign(b);
     let (t0, t1) = if q == 0.0 { (0.0, 0.0) } else { (c / q, q) };
     let (lo, hi) = if t0 <= t1 { (t0, t1) } else { (t1, t0) };
@@ -142,9 +154,9 @@ pub fn sphere_t(s: &Sphere, o: Vec3A, d: Vec3A, tmax: f32) -> Option<f32> {
 }
 
 /// Ray-parallelogram intersection: plane hit `t = (corner - o).n / d.n`,
-/// then `a = w.(x u... )` by Cramer's rule: with `h = p - corner`,
-/// `a = w.(h x v)`, `b = w.(u x h)`, inside when both lie in [0, 1].
-/// Rays parallel to the plane miss.
+/// then with `h = o + t d - corner` the edge coordinates `a = h . ua`,
+/// `b = h . vb` (dual basis of u, v in the plane); inside when both lie in
+/// [0, 1]. Rays parallel to the plane miss.
 #[inline]
 pub fn quad_t(q: &Quad, o: Vec3A, d: Vec3A, tmax: f32) -> Option<f32> {
     let dn = d.dot(q.normal);
@@ -156,8 +168,8 @@ pub fn quad_t(q: &Quad, o: Vec3A, d: Vec3A, tmax: f32) -> Option<f32> {
         return None;
     }
     let h = o + t * d - q.corner;
-    let a = q.w.dot(h.cross(q.v));
-    let b = q.w.dot(q.u.cross(h));
+    let a = h.dot(q.ua);
+    let b = h.dot(q.vb);
     if (0.0..=1.0).contains(&a) && (0.0..=1.0).contains(&b) {
         Some(t)
     } else {
