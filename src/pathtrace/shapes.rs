@@ -42,6 +42,9 @@ pub struct Quad {
     vb: Vec3A,
     normal: Vec3A,
     area: f32,
+    /// The axis the plane is perpendicular to (the normal is exactly +-e_axis,
+    /// as for every Cornell box wall), or 3 for a tilted plane.
+    axis: usize,
 }
 
 impl Quad {
@@ -59,6 +62,11 @@ impl Quad {
         if !(ua.is_finite() && vb.is_finite()) {
             return None;
         }
+        let axis = (0..3)
+            .find(|&a| {
+                normal[a].abs() == 1.0 && normal[(a + 1) % 3] == 0.0 && normal[(a + 2) % 3] == 0.0
+            })
+            .unwrap_or(3);
         Some(Quad {
             corner,
             u,
@@ -67,6 +75,7 @@ impl Quad {
             vb,
             normal,
             area: nn.sqrt(),
+            axis,
         })
     }
 
@@ -154,16 +163,25 @@ pub fn sphere_t(s: &Sphere, o: Vec3A, d: Vec3A, tmax: f32) -> Option<f32> {
 }
 
 /// Ray-parallelogram intersection: plane hit `t = (corner - o).n / d.n`,
+/// (for a plane perpendicular to an axis simply `(corner_k - o_k) / d_k`),
 /// then with `h = o + t d - corner` the edge coordinates `a = h . ua`,
 /// `b = h . vb` (dual basis of u, v in the plane); inside when both lie in
 /// [0, 1]. Rays parallel to the plane miss.
 #[inline]
 pub fn quad_t(q: &Quad, o: Vec3A, d: Vec3A, tmax: f32) -> Option<f32> {
-    let dn = d.dot(q.normal);
-    if dn == 0.0 {
-        return None;
-    }
-    let t = (q.corner - o).dot(q.normal) / dn;
+    let t = if q.axis < 3 {
+        let k = q.axis;
+        if d[k] == 0.0 {
+            return None;
+        }
+        (q.corner[k] - o[k]) / d[k]
+    } else {
+        let dn = d.dot(q.normal);
+        if dn == 0.0 {
+            return None;
+        }
+        (q.corner - o).dot(q.normal) / dn
+    };
     if !(t > 0.0 && t < tmax) {
         return None;
     }
@@ -279,6 +297,16 @@ mod tests {
             Some(2.0)
         );
         assert!(Quad::new(Vec3A::ZERO, v(1.0, 0.0, 0.0), v(2.0, 0.0, 0.0)).is_none());
+    }
+
+    #[test]
+    fn tilted_quad_matches_its_plane_and_edges() {
+        // The plane x + z = 0 through the origin, edges (1, 0, -1) and (0, 1, 0).
+        let q = Quad::new(v(0.0, 0.0, 0.0), v(1.0, 0.0, -1.0), v(0.0, 1.0, 0.0)).unwrap();
+        let t = quad_t(&q, v(0.5, 0.5, 2.0), v(0.0, 0.0, -1.0), f32::INFINITY).unwrap();
+        assert!((t - 2.5).abs() < 1e-6, "{t}");
+        assert!(quad_t(&q, v(1.5, 0.5, 2.0), v(0.0, 0.0, -1.0), f32::INFINITY).is_none());
+        assert!(quad_t(&q, v(0.5, 1.5, 2.0), v(0.0, 0.0, -1.0), f32::INFINITY).is_none());
     }
 
     #[test]

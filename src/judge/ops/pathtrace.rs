@@ -11,6 +11,7 @@
 //! | `pathtrace.convergence` | RMSE vs a high-spp render of the same scene over spp and seeds; log-log slope |
 //! | `pathtrace.fireflies` | render + fraction of pixels above 10x their 3x3 median luminance |
 //! | `pathtrace.features` | render + mean radiance of world-space regions: penumbra, bleeding, caustic |
+//! | `pathtrace.rmse_vs_reference` | render + clamped and raw RMSE against a saved independent reference (Mitsuba 3) |
 //! | `pathtrace.speed_error` | seconds and RMSE against a reference render over an spp sweep |
 
 use std::time::Instant;
@@ -85,6 +86,12 @@ pub const OPS: &[OpEntry] = &[
         doc: "render + mean rgb/luminance/(r/g) of named world-space regions of named shapes (params.regions)",
         params: &["regions"],
         run: features,
+    },
+    OpEntry {
+        name: "pathtrace.rmse_vs_reference",
+        doc: "render + rmse (clamped [0,1]) and rmse_raw against params.reference (an (H, W, 3) float32 .npy)",
+        params: &["reference"],
+        run: rmse_vs_reference,
     },
     OpEntry {
         name: "pathtrace.speed_error",
@@ -789,6 +796,54 @@ fn features(ctx: &OpCtx) -> Result<Outputs> {
     Ok(out)
 }
 
+/// Reads an (H, W, 3) float32 `.npy` reference image of the scene's size.
+fn read_reference(ctx: &OpCtx, file: &str, w: usize, h: usize) -> Result<Image> {
+    let path = ctx.resolve(file);
+    let t = Tensor::read_npy_checked(&path, &["float32"], &[Some(h), Some(w), Some(3)])?;
+    let v = t.to_f64_vec();
+    if v.iter().any(|x| !x.is_finite()) {
+        return Err(Error::invalid(
+            path.display().to_string(),
+            "reference has NaN or Inf",
+        ));
+    }
+    let rgb = v
+        .chunks_exact(3)
+        .map(|c| [c[0] as f32, c[1] as f32, c[2] as f32])
+        .collect();
+    Ok(Image {
+        width: w as u32,
+        height: h as u32,
+        rgb,
+        variance: vec![[0.0; 3]; w * h],
+        nonfinite: 0,
+    })
+}
+
+/// The acceptance measure: RMSE of linear radiance clamped to [0, 1]
+/// against an independent renderer's converged image (`params.reference`,
+/// relative to the manifest), and the unclamped RMSE.
+fn rmse_vs_reference(ctx: &OpCtx) -> Result<Outputs> {
+    ctx.cpu_only()?;
+    let s = load(ctx)?;
+    let file: String = ctx.param_req("reference")?;
+    let reference = read_reference(
+        ctx,
+        &file,
+        s.params.width as usize,
+        s.params.height as usize,
+    )?;
+    let (img, secs) = timed_render(&s, &s.params, ctx)?;
+    let mut out = Outputs::default();
+    image_outputs(&img, secs, &s.params, &mut out)?;
+    out.tensor("rmse", Tensor::scalar(mse(&img, &reference, true).sqrt()));
+    out.tensor(
+        "rmse_raw",
+        Tensor::scalar(mse(&img, &reference, false).sqrt()),
+    );
+    Ok(out)
+}
+
 /// Speed against error: for each spp, the seconds of one render and its
 /// RMSE against a reference, linear radiance clamped to [0, 1] (`rmse`, as
 /// the acceptance measures) and raw (`rmse_raw`, the reference's own noise
@@ -805,23 +860,7 @@ fn speed_error(ctx: &OpCtx) -> Result<Outputs> {
     let mut out = Outputs::default();
     let (w, h) = (s.params.width as usize, s.params.height as usize);
     let (reference, noise) = match ctx.param::<String>("reference")? {
-        Some(file) => {
-            let path = ctx.resolve(&file);
-            let t = Tensor::read_npy_checked(&path, &["float32"], &[Some(h), Some(w), Some(3)])?;
-            let v = t.to_f64_vec();
-            let rgb = v
-                .chunks_exact(3)
-                .map(|c| [c[0] as f32, c[1] as f32, c[2] as f32])
-                .collect();
-            let img = Image {
-                width: w as u32,
-                height: h as u32,
-                rgb,
-                variance: vec![[0.0; 3]; w * h],
-                nonfinite: 0,
-            };
-            (img, 0.0)
-        }
+        Some(file) => (read_reference(ctx, &file, w, h)?, 0.0),
         None => {
             let (r, secs) = render_with(&s, ref_spp, ref_seed, ctx)?;
             out.metric("ref_time_s", secs);
