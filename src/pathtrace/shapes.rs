@@ -83,6 +83,11 @@ impl Quad {
         self.normal
     }
 
+    /// The dual edge vectors `(ua, vb)`: `a = h . ua`, `b = h . vb`.
+    pub fn dual(&self) -> (Vec3A, Vec3A) {
+        (self.ua, self.vb)
+    }
+
     pub fn area(&self) -> f32 {
         self.area
     }

@@ -211,7 +211,7 @@ fn hit_outputs(
     Ok(out)
 }
 
-/// The renderer's `shapes::intersect` (f32). Misses: t = -1, index = -1,
+/// The renderer's intersection as rendering runs it (`packed`, f32). Misses: t = -1, index = -1,
 /// normal = 0.
 fn intersect_list(ctx: &OpCtx) -> Result<Outputs> {
     ctx.cpu_only()?;
@@ -234,11 +234,12 @@ fn intersect_list(ctx: &OpCtx) -> Result<Outputs> {
             }
         });
     }
+    let packed = crate::pathtrace::packed::Packed::new(&shapes);
     let (mut t, mut index, mut normal) = (vec![], vec![], vec![]);
     for r in &rays {
         let (o, d) = unit(r);
         let (o, d) = (v(o), v(d).normalize());
-        match intersect(&shapes, o, d, f32::INFINITY) {
+        match packed.intersect(o, d, f32::INFINITY) {
             Some((th, k)) => {
                 let (_, n) = shapes[k].surface(o, d, th);
                 t.push(th as f64);
