@@ -30,7 +30,8 @@
 use glam::Vec3A;
 
 use super::bsdf::{Frame, Material};
-use super::shapes::{intersect, occluded, spawn_origin, Shape};
+use super::packed::Packed;
+use super::shapes::{spawn_origin, Shape};
 use crate::budget::{bytes_for, MemBudget};
 use crate::camera::RealCamera;
 use crate::error::{Error, Result};
@@ -84,6 +85,7 @@ pub struct Scene {
     materials: Vec<Material>,
     lights: Vec<u32>,
     environment: Vec3A,
+    packed: Packed,
 }
 
 impl Scene {
@@ -158,6 +160,7 @@ impl Scene {
             materials,
             lights,
             environment: env,
+            packed: Packed::new(&objects.iter().map(|o| o.0).collect::<Vec<_>>()),
         })
     }
 
@@ -270,7 +273,10 @@ fn sample_light(
         return Vec3A::ZERO;
     }
     let o = spawn_origin(p, n, wi);
-    if occluded(&scene.shapes, o, wi, (x - o).length() * (1.0 - 1e-4)) {
+    if scene
+        .packed
+        .occluded(o, wi, (x - o).length() * (1.0 - 1e-4))
+    {
         return Vec3A::ZERO;
     }
     let pl = dist2 / (cos_l * q.area() * nl as f32);
@@ -295,7 +301,7 @@ pub fn trace(
     let mut prev_delta = true;
     let mut bounces = 0u32;
     loop {
-        let Some((t, idx)) = intersect(&scene.shapes, o, d, f32::INFINITY) else {
+        let Some((t, idx)) = scene.packed.intersect(o, d, f32::INFINITY) else {
             l += beta * scene.environment;
             break;
         };
@@ -449,7 +455,7 @@ pub fn first_hits(
         let (u, v) = (i as u32 % width, i as u32 / width);
         let (o, d) = cam.ray(u as f32 + 0.5, v as f32 + 0.5);
         let (o, d) = (Vec3A::from_array(o), Vec3A::from_array(d));
-        match intersect(&scene.shapes, o, d, f32::INFINITY) {
+        match scene.packed.intersect(o, d, f32::INFINITY) {
             Some((t, k)) => (k as i32, scene.shapes[k].surface(o, d, t).0.to_array()),
             None => (-1, [0.0; 3]),
         }

@@ -2,7 +2,8 @@
 //! box with three spheres; SCENES.md "Cornell box with three spheres").
 //!
 //! Stages, after the seed's components: [`shapes`] (geometry: spheres,
-//! quads, the one intersection function), [`bsdf`] (materials: a closed
+//! quads, the one intersection function; [`packed`] runs it four shapes at
+//! a time for rendering), [`bsdf`] (materials: a closed
 //! enum), [`integrator`] (NEE + MIS path loop, Russian roulette, tiles over
 //! rayon), [`chi2`] (the statistical test the judge runs on every sampler).
 //! The renderer takes typed parameters; `scene/pathtrace.rs` builds them.
@@ -10,6 +11,7 @@
 pub mod bsdf;
 pub mod chi2;
 pub mod integrator;
+pub mod packed;
 pub mod shapes;
 
 pub use bsdf::Material;

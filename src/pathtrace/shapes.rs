@@ -36,11 +36,15 @@ pub struct Quad {
     pub corner: Vec3A,
     pub u: Vec3A,
     pub v: Vec3A,
-    /// `u x v / |u x v|^2`: dotted with a vector in the plane it gives the
-    /// barycentric-like coordinates (Cramer's rule for the 2x2 system).
-    w: Vec3A,
+    /// Dual edge vectors: for `h` in the plane, `a = h . ua`, `b = h . vb`
+    /// (`ua = (v x n) / (u . (v x n))`, `vb = (n x u) / (v . (n x u))`).
+    ua: Vec3A,
+    vb: Vec3A,
     normal: Vec3A,
     area: f32,
+    /// The axis the plane is perpendicular to (the normal is exactly +-e_axis,
+    /// as for every Cornell box wall), or 3 for a tilted plane.
+    axis: usize,
 }
 
 impl Quad {
@@ -52,18 +56,36 @@ impl Quad {
         if !(nn > 0.0 && nn.is_finite() && corner.is_finite()) {
             return None;
         }
+        let normal = n / nn.sqrt();
+        let (vn, nu) = (v.cross(normal), normal.cross(u));
+        let (ua, vb) = (vn / u.dot(vn), nu / v.dot(nu));
+        if !(ua.is_finite() && vb.is_finite()) {
+            return None;
+        }
+        let axis = (0..3)
+            .find(|&a| {
+                normal[a].abs() == 1.0 && normal[(a + 1) % 3] == 0.0 && normal[(a + 2) % 3] == 0.0
+            })
+            .unwrap_or(3);
         Some(Quad {
             corner,
             u,
             v,
-            w: n / nn,
-            normal: n / nn.sqrt(),
+            ua,
+            vb,
+            normal,
             area: nn.sqrt(),
+            axis,
         })
     }
 
     pub fn normal(&self) -> Vec3A {
         self.normal
+    }
+
+    /// The dual edge vectors `(ua, vb)`: `a = h . ua`, `b = h . vb`.
+    pub fn dual(&self) -> (Vec3A, Vec3A) {
+        (self.ua, self.vb)
     }
 
     pub fn area(&self) -> f32 {
@@ -122,13 +144,17 @@ impl Shape {
 pub fn sphere_t(s: &Sphere, o: Vec3A, d: Vec3A, tmax: f32) -> Option<f32> {
     let f = o - s.centre;
     let b = -f.dot(d);
-    let l = f + b * d;
     let r2 = s.radius * s.radius;
+    let c = f.length_squared() - r2;
+    // Origin outside and sphere behind: both roots negative.
+    if c > 0.0 && b < 0.0 {
+        return None;
+    }
+    let l = f + b * d;
     let disc = r2 - l.length_squared();
     if disc < 0.0 {
         return None;
     }
-    let c = f.length_squared() - r2;
     let q = b + disc.sqrt().copysign(b);
     let (t0, t1) = if q == 0.0 { (0.0, 0.0) } else { (c / q, q) };
     let (lo, hi) = if t0 <= t1 { (t0, t1) } else { (t1, t0) };
@@ -142,22 +168,31 @@ pub fn sphere_t(s: &Sphere, o: Vec3A, d: Vec3A, tmax: f32) -> Option<f32> {
 }
 
 /// Ray-parallelogram intersection: plane hit `t = (corner - o).n / d.n`,
-/// then `a = w.(x u... )` by Cramer's rule: with `h = p - corner`,
-/// `a = w.(h x v)`, `b = w.(u x h)`, inside when both lie in [0, 1].
-/// Rays parallel to the plane miss.
+/// (for a plane perpendicular to an axis simply `(corner_k - o_k) / d_k`),
+/// then with `h = o + t d - corner` the edge coordinates `a = h . ua`,
+/// `b = h . vb` (dual basis of u, v in the plane); inside when both lie in
+/// [0, 1]. Rays parallel to the plane miss.
 #[inline]
 pub fn quad_t(q: &Quad, o: Vec3A, d: Vec3A, tmax: f32) -> Option<f32> {
-    let dn = d.dot(q.normal);
-    if dn == 0.0 {
-        return None;
-    }
-    let t = (q.corner - o).dot(q.normal) / dn;
+    let t = if q.axis < 3 {
+        let k = q.axis;
+        if d[k] == 0.0 {
+            return None;
+        }
+        (q.corner[k] - o[k]) / d[k]
+    } else {
+        let dn = d.dot(q.normal);
+        if dn == 0.0 {
+            return None;
+        }
+        (q.corner - o).dot(q.normal) / dn
+    };
     if !(t > 0.0 && t < tmax) {
         return None;
     }
     let h = o + t * d - q.corner;
-    let a = q.w.dot(h.cross(q.v));
-    let b = q.w.dot(q.u.cross(h));
+    let a = h.dot(q.ua);
+    let b = h.dot(q.vb);
     if (0.0..=1.0).contains(&a) && (0.0..=1.0).contains(&b) {
         Some(t)
     } else {
@@ -267,6 +302,16 @@ mod tests {
             Some(2.0)
         );
         assert!(Quad::new(Vec3A::ZERO, v(1.0, 0.0, 0.0), v(2.0, 0.0, 0.0)).is_none());
+    }
+
+    #[test]
+    fn tilted_quad_matches_its_plane_and_edges() {
+        // The plane x + z = 0 through the origin, edges (1, 0, -1) and (0, 1, 0).
+        let q = Quad::new(v(0.0, 0.0, 0.0), v(1.0, 0.0, -1.0), v(0.0, 1.0, 0.0)).unwrap();
+        let t = quad_t(&q, v(0.5, 0.5, 2.0), v(0.0, 0.0, -1.0), f32::INFINITY).unwrap();
+        assert!((t - 2.5).abs() < 1e-6, "{t}");
+        assert!(quad_t(&q, v(1.5, 0.5, 2.0), v(0.0, 0.0, -1.0), f32::INFINITY).is_none());
+        assert!(quad_t(&q, v(0.5, 1.5, 2.0), v(0.0, 0.0, -1.0), f32::INFINITY).is_none());
     }
 
     #[test]

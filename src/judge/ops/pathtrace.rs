@@ -11,6 +11,7 @@
 //! | `pathtrace.convergence` | RMSE vs a high-spp render of the same scene over spp and seeds; log-log slope |
 //! | `pathtrace.fireflies` | render + fraction of pixels above 10x their 3x3 median luminance |
 //! | `pathtrace.features` | render + mean radiance of world-space regions: penumbra, bleeding, caustic |
+//! | `pathtrace.rmse_vs_reference` | render + clamped and raw RMSE against a saved independent reference (Mitsuba 3) |
 //! | `pathtrace.speed_error` | seconds and RMSE against a reference render over an spp sweep |
 
 use std::time::Instant;
@@ -87,9 +88,15 @@ pub const OPS: &[OpEntry] = &[
         run: features,
     },
     OpEntry {
+        name: "pathtrace.rmse_vs_reference",
+        doc: "render + rmse (clamped [0,1]) and rmse_raw against params.reference (an (H, W, 3) float32 .npy)",
+        params: &["reference"],
+        run: rmse_vs_reference,
+    },
+    OpEntry {
         name: "pathtrace.speed_error",
-        doc: "seconds and rmse (clamped [0,1] and raw) vs a ref_spp render for each of params.spp",
-        params: &["spp", "ref_spp", "ref_seed"],
+        doc: "seconds and rmse (clamped [0,1] and raw) vs a ref_spp render (or params.reference .npy) per params.spp; plot_image",
+        params: &["spp", "ref_spp", "ref_seed", "reference"],
         run: speed_error,
     },
 ];
@@ -204,7 +211,7 @@ fn hit_outputs(
     Ok(out)
 }
 
-/// The renderer's `shapes::intersect` (f32). Misses: t = -1, index = -1,
+/// The renderer's intersection as rendering runs it (`packed`, f32). Misses: t = -1, index = -1,
 /// normal = 0.
 fn intersect_list(ctx: &OpCtx) -> Result<Outputs> {
     ctx.cpu_only()?;
@@ -227,11 +234,12 @@ fn intersect_list(ctx: &OpCtx) -> Result<Outputs> {
             }
         });
     }
+    let packed = crate::pathtrace::packed::Packed::new(&shapes);
     let (mut t, mut index, mut normal) = (vec![], vec![], vec![]);
     for r in &rays {
         let (o, d) = unit(r);
         let (o, d) = (v(o), v(d).normalize());
-        match intersect(&shapes, o, d, f32::INFINITY) {
+        match packed.intersect(o, d, f32::INFINITY) {
             Some((th, k)) => {
                 let (_, n) = shapes[k].surface(o, d, th);
                 t.push(th as f64);
@@ -789,20 +797,79 @@ fn features(ctx: &OpCtx) -> Result<Outputs> {
     Ok(out)
 }
 
+/// Reads an (H, W, 3) float32 `.npy` reference image of the scene's size.
+fn read_reference(ctx: &OpCtx, file: &str, w: usize, h: usize) -> Result<Image> {
+    let path = ctx.resolve(file);
+    let t = Tensor::read_npy_checked(&path, &["float32"], &[Some(h), Some(w), Some(3)])?;
+    let v = t.to_f64_vec();
+    if v.iter().any(|x| !x.is_finite()) {
+        return Err(Error::invalid(
+            path.display().to_string(),
+            "reference has NaN or Inf",
+        ));
+    }
+    let rgb = v
+        .chunks_exact(3)
+        .map(|c| [c[0] as f32, c[1] as f32, c[2] as f32])
+        .collect();
+    Ok(Image {
+        width: w as u32,
+        height: h as u32,
+        rgb,
+        variance: vec![[0.0; 3]; w * h],
+        nonfinite: 0,
+    })
+}
+
+/// The acceptance measure: RMSE of linear radiance clamped to [0, 1]
+/// against an independent renderer's converged image (`params.reference`,
+/// relative to the manifest), and the unclamped RMSE.
+fn rmse_vs_reference(ctx: &OpCtx) -> Result<Outputs> {
+    ctx.cpu_only()?;
+    let s = load(ctx)?;
+    let file: String = ctx.param_req("reference")?;
+    let reference = read_reference(
+        ctx,
+        &file,
+        s.params.width as usize,
+        s.params.height as usize,
+    )?;
+    let (img, secs) = timed_render(&s, &s.params, ctx)?;
+    let mut out = Outputs::default();
+    image_outputs(&img, secs, &s.params, &mut out)?;
+    out.tensor("rmse", Tensor::scalar(mse(&img, &reference, true).sqrt()));
+    out.tensor(
+        "rmse_raw",
+        Tensor::scalar(mse(&img, &reference, false).sqrt()),
+    );
+    Ok(out)
+}
+
 /// Speed against error: for each spp, the seconds of one render and its
-/// RMSE against a `ref_spp` render (seed `ref_seed`), linear radiance clamped
-/// to [0, 1] (`rmse`, as the acceptance measures) and raw with the
-/// reference's noise subtracted (`rmse_raw`). Metrics `time_s_<spp>`.
+/// RMSE against a reference, linear radiance clamped to [0, 1] (`rmse`, as
+/// the acceptance measures) and raw (`rmse_raw`, the reference's own noise
+/// subtracted when it is rendered here). The reference is a `ref_spp` render
+/// (seed `ref_seed`) or, with `params.reference`, an (H, W, 3) `.npy` file
+/// (relative to the manifest). Metrics `time_s_<spp>`; `plot_image` draws
+/// log RMSE against log seconds (see [`plot_loglog`]).
 fn speed_error(ctx: &OpCtx) -> Result<Outputs> {
     ctx.cpu_only()?;
     let s = load(ctx)?;
     let spps: Vec<u32> = ctx.param_or("spp", vec![4, 16, 64, 256])?;
     let ref_spp: u32 = ctx.param_or("ref_spp", 4096)?;
     let ref_seed: u32 = ctx.param_or("ref_seed", 1 << 31)?;
-    let (reference, ref_secs) = render_with(&s, ref_spp, ref_seed, ctx)?;
-    let noise = ref_noise(&reference);
-    let (mut secs, mut rmse, mut raw) = (vec![], vec![], vec![]);
     let mut out = Outputs::default();
+    let (w, h) = (s.params.width as usize, s.params.height as usize);
+    let (reference, noise) = match ctx.param::<String>("reference")? {
+        Some(file) => (read_reference(ctx, &file, w, h)?, 0.0),
+        None => {
+            let (r, secs) = render_with(&s, ref_spp, ref_seed, ctx)?;
+            out.metric("ref_time_s", secs);
+            let noise = ref_noise(&r);
+            (r, noise)
+        }
+    };
+    let (mut secs, mut rmse, mut raw) = (vec![], vec![], vec![]);
     for &spp in &spps {
         let (img, t) = render_with(&s, spp, s.params.seed, ctx)?;
         secs.push(t);
@@ -812,21 +879,100 @@ fn speed_error(ctx: &OpCtx) -> Result<Outputs> {
     }
     let k = [spps.len()];
     out.tensor(
+        "plot_image",
+        Tensor::real3(&[PLOT_H, PLOT_W], &plot_loglog(&secs, &rmse))?,
+    );
+    out.tensor(
         "spp",
         Tensor::real(&k, spps.iter().map(|&v| v as f64).collect())?,
     );
     out.tensor("seconds", Tensor::real(&k, secs)?);
     out.tensor("rmse", Tensor::real(&k, rmse)?);
     out.tensor("rmse_raw", Tensor::real(&k, raw)?);
-    out.tensor(
-        "reference",
-        Tensor::real3(
-            &[reference.height as usize, reference.width as usize],
-            &reference.rgb,
-        )?,
-    );
-    out.metric("ref_time_s", ref_secs);
     Ok(out)
+}
+
+const PLOT_W: usize = 480;
+const PLOT_H: usize = 360;
+
+/// A log-log line plot (linear RGB, white background) of `ys` against `xs`:
+/// axes span whole decades around the data, light grey lines mark each
+/// decade, the data are a blue polyline with square markers, and a dashed
+/// grey line of slope -1/2 through the first point shows the ideal Monte
+/// Carlo rate. Axis labels live in the report that shows the plot.
+fn plot_loglog(xs: &[f64], ys: &[f64]) -> Vec<[f32; 3]> {
+    let mut img = vec![[1.0f32; 3]; PLOT_W * PLOT_H];
+    let lx: Vec<f64> = xs.iter().map(|v| v.max(1e-12).log10()).collect();
+    let ly: Vec<f64> = ys.iter().map(|v| v.max(1e-12).log10()).collect();
+    let span = |v: &[f64]| {
+        let lo = v.iter().cloned().fold(f64::INFINITY, f64::min).floor();
+        let hi = v.iter().cloned().fold(f64::NEG_INFINITY, f64::max).ceil();
+        if lo.is_finite() && hi > lo {
+            (lo, hi)
+        } else {
+            (-1.0, 1.0)
+        }
+    };
+    let ((x0, x1), (y0, y1)) = (span(&lx), span(&ly));
+    let m = 20.0;
+    let px = |x: f64| m + (x - x0) / (x1 - x0) * (PLOT_W as f64 - 2.0 * m);
+    let py = |y: f64| PLOT_H as f64 - m - (y - y0) / (y1 - y0) * (PLOT_H as f64 - 2.0 * m);
+    let put = |img: &mut Vec<[f32; 3]>, x: f64, y: f64, c: [f32; 3]| {
+        let (u, v) = (x.round(), y.round());
+        if u >= 0.0 && v >= 0.0 && (u as usize) < PLOT_W && (v as usize) < PLOT_H {
+            img[v as usize * PLOT_W + u as usize] = c;
+        }
+    };
+    let grey = [0.8f32; 3];
+    for d in (x0 as i32)..=(x1 as i32) {
+        for v in 0..PLOT_H {
+            put(&mut img, px(d as f64), v as f64, grey);
+        }
+    }
+    for d in (y0 as i32)..=(y1 as i32) {
+        for u in 0..PLOT_W {
+            put(&mut img, u as f64, py(d as f64), grey);
+        }
+    }
+    let line =
+        |img: &mut Vec<[f32; 3]>, a: (f64, f64), b: (f64, f64), c: [f32; 3], dashed: bool| {
+            let n = ((b.0 - a.0).abs().max((b.1 - a.1).abs()) as usize).max(1);
+            for i in 0..=n {
+                if dashed && (i / 6) % 2 == 1 {
+                    continue;
+                }
+                let t = i as f64 / n as f64;
+                put(img, a.0 + t * (b.0 - a.0), a.1 + t * (b.1 - a.1), c);
+            }
+        };
+    if let (Some(&fx), Some(&fy)) = (lx.first(), ly.first()) {
+        let y_at = |x: f64| fy - 0.5 * (x - fx);
+        line(
+            &mut img,
+            (px(x0), py(y_at(x0))),
+            (px(x1), py(y_at(x1))),
+            [0.45; 3],
+            true,
+        );
+    }
+    let blue = [0.05f32, 0.15, 0.8];
+    for i in 1..lx.len() {
+        line(
+            &mut img,
+            (px(lx[i - 1]), py(ly[i - 1])),
+            (px(lx[i]), py(ly[i])),
+            blue,
+            false,
+        );
+    }
+    for (&x, &y) in lx.iter().zip(&ly) {
+        for du in -3..=3 {
+            for dv in -3..=3 {
+                put(&mut img, px(x) + du as f64, py(y) + dv as f64, blue);
+            }
+        }
+    }
+    img
 }
 
 #[cfg(test)]
