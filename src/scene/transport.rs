@@ -28,7 +28,7 @@
 //! | --- | --- | --- |
 //! | `type` | `rk4`, `dopri5`, `dopri5_fixed`, `verlet`, `yoshida4`, `implicit_midpoint` | required |
 //! | `h` | fixed step (fixed-step tiers; exactly one of `h`, `eta`) | - |
-//! | `eta` | step law `h = eta * scale(y)` (`r`, `r - 2M`, `sqrt(b0^2 + l^2)`, 1 for GRIN) | - |
+//! | `eta` | step law `h = eta * scale(y)` (`r`, `r - 2M`, `sqrt(b0^2 + l^2)`, 1 for GRIN); for `dopri5` a cap `h <= eta * scale(y)` | -, dopri5 0.5 |
 //! | `h_min`, `h_max` | step bounds (law and controller) | 1e-12, 1e30 |
 //! | `rtol`, `atol`, `h0` | Dormand–Prince controller (`dopri5` only) | 1e-10, 1e-12, 0.01 |
 //! | `project` | project onto H = 0 after each step | false |
@@ -252,14 +252,15 @@ impl IntegratorSpec {
     pub fn build<F: Real>(&self) -> Result<Tier<F>> {
         Ok(match self.kind {
             TierKind::Dopri5 => {
-                if self.h.is_some() || self.eta.is_some() {
+                if self.h.is_some() {
                     return Err(Error::invalid(
                         "integrator",
-                        "dopri5 chooses its own steps: use rtol/atol/h0, not h or eta",
+                        "dopri5 chooses its own steps: use rtol/atol/h0 (and eta as a cap), not h",
                     ));
                 }
                 Tier::Dopri5(Controller {
                     rtol: F::of(self.rtol.unwrap_or(1e-10)),
+                    eta: F::of(self.eta.unwrap_or(0.5)),
                     atol: F::of(self.atol.unwrap_or(1e-12)),
                     h0: F::of(self.h0.unwrap_or(0.01)),
                     h_min: F::of(self.h_min.unwrap_or(1e-12)),
@@ -413,6 +414,10 @@ mod tests {
     #[test]
     fn bad_integrator_and_unknown_keys_are_refused() {
         let base = "renderer: transport\ntask: {type: grin, medium: {type: fibre, n0: 1.5, alpha: 0.5}, rays: [[0,0,0,1,0.1,0]], stop: {type: axis_return}}\n";
+        assert!(parse(&doc(&format!(
+            "{base}integrator: {{type: dopri5, eta: 0.1, h0: 1}}\n"
+        )))
+        .is_ok());
         for (bad, want) in [
             ("integrator: {type: rk4}\n", "exactly one"),
             ("integrator: {type: rk4, h: 0.1, eta: 0.1}\n", "exactly one"),

@@ -589,6 +589,7 @@ mod tests {
         let opt = Options {
             tier: Tier::Dopri5(Controller {
                 rtol: 1e-12,
+                eta: 0.5,
                 atol: 1e-12,
                 h0: 0.01,
                 h_min: 1e-12,
