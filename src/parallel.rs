@@ -52,3 +52,10 @@ pub fn with_threads<R: Send>(threads: usize, f: impl FnOnce() -> R + Send) -> R 
         Err(_) => f(),
     }
 }
+
+/// Runs `f(i, item)` for every item in parallel. Items carry disjoint
+/// mutable borrows (tiles of an output), so each writes only its own slots.
+pub fn par_each<T: Send>(label: &'static str, items: Vec<T>, f: impl Fn(usize, T) + Sync + Send) {
+    let _span = tracing::debug_span!("par_each", label, n = items.len()).entered();
+    items.into_par_iter().enumerate().for_each(|(i, t)| f(i, t));
+}

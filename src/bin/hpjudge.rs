@@ -252,7 +252,32 @@ fn init_threads(n: usize) {
     }
 }
 
+/// Mesa's Vulkan drivers print an error on every process start when
+/// `XDG_RUNTIME_DIR` is unset; give them a private folder. Runs before any
+/// thread exists.
+fn quiet_mesa() {
+    if std::env::var_os("XDG_RUNTIME_DIR").is_none() {
+        #[cfg(unix)]
+        let uid = {
+            use std::os::unix::fs::MetadataExt;
+            std::fs::metadata("/proc/self").map_or(0, |m| m.uid())
+        };
+        #[cfg(not(unix))]
+        let uid = 0;
+        let dir = std::env::temp_dir().join(format!("hpjudge-xdg-{uid}"));
+        if std::fs::create_dir_all(&dir).is_ok() {
+            #[cfg(unix)]
+            {
+                use std::os::unix::fs::PermissionsExt;
+                let _ = std::fs::set_permissions(&dir, std::fs::Permissions::from_mode(0o700));
+            }
+            std::env::set_var("XDG_RUNTIME_DIR", &dir);
+        }
+    }
+}
+
 fn main() -> ExitCode {
+    quiet_mesa();
     let filter = tracing_subscriber::EnvFilter::try_from_env("HPJUDGE_LOG")
         .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("warn"));
     tracing_subscriber::fmt()
@@ -380,18 +405,42 @@ fn dispatch(cli: Cli) -> anyhow::Result<Outcome> {
             Ok(Outcome::Ok)
         }
         Cmd::Info { json } => {
-            let v = env::describe(rayon::current_num_threads(), 0, "-", "-", "-", None);
+            let gpu = hotpath::gpu::describe();
+            let v = env::describe(
+                rayon::current_num_threads(),
+                0,
+                "-",
+                "-",
+                "-",
+                Some(gpu.clone()),
+            );
             if json {
                 println!("{}", serde_json::to_string_pretty(&v)?);
-            } else {
-                println!("hpjudge {}", env::VERSION);
+                return Ok(Outcome::Ok);
+            }
+            println!("hpjudge {}", env::VERSION);
+            println!(
+                "cpu:      {} ({} logical CPUs)",
+                env::cpu_model(),
+                env::logical_cpus()
+            );
+            println!("os:       {} {}", env::os_name(), std::env::consts::ARCH);
+            println!(
+                "backends: {} (WGPU_BACKEND)",
+                gpu["backends"].as_str().unwrap_or("?")
+            );
+            let adapters = hotpath::gpu::adapters();
+            if adapters.is_empty() {
+                println!("gpu:      no adapter on these backends (install a Vulkan driver, e.g. mesa-vulkan-drivers)");
+            }
+            for a in &adapters {
                 println!(
-                    "cpu:      {} ({} logical CPUs)",
-                    env::cpu_model(),
-                    env::logical_cpus()
+                    "gpu:      {} [{}, {}] driver {} {}",
+                    a.name, a.backend, a.device_type, a.driver, a.driver_info
                 );
-                println!("os:       {} {}", env::os_name(), std::env::consts::ARCH);
-                println!("gpu:      none (the GPU layer is not built into this version)");
+            }
+            if let Some(e) = gpu["error"].as_str() {
+                println!("gpu error: {e}");
             }
             Ok(Outcome::Ok)
         }
