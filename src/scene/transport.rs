@@ -5,6 +5,8 @@
 //! | `task` | what to trace (below) | required |
 //! | `integrator` | tier and step settings (below) | required |
 //! | `max_steps` | accepted steps per ray before it ends undecided | 1000000 |
+//! | `dump_rays` | ray indices (input order) whose polylines `(x, y, z, lambda)` per accepted step `transport.render` writes as `polylines.npy` (k, L, 4; padded with the last point) and `polyline_len.npy` | [] |
+//! | `research` | `{preset: validate}`: deterministic validation preset (see [`ResearchPreset`]); the op logs a one-line banner and reports the settings hash as counter `research_settings_hash` | off |
 //!
 //! `task.type`:
 //!
@@ -28,7 +30,7 @@
 //! | --- | --- | --- |
 //! | `type` | `rk4`, `dopri5`, `dopri5_fixed`, `verlet`, `yoshida4`, `implicit_midpoint` | required |
 //! | `h` | fixed step (fixed-step tiers; exactly one of `h`, `eta`) | - |
-//! | `eta` | step law `h = eta * scale(y)` (`r`, `r - 2M`, `sqrt(b0^2 + l^2)`, 1 for GRIN) | - |
+//! | `eta` | step law `h = eta * scale(y)` (`r`, `r - 2M`, `sqrt(b0^2 + l^2)`, 1 for GRIN); for `dopri5` a cap `h <= eta * scale(y)` | -, dopri5 0.5 |
 //! | `h_min`, `h_max` | step bounds (law and controller) | 1e-12, 1e30 |
 //! | `rtol`, `atol`, `h0` | Dormand–Prince controller (`dopri5` only) | 1e-10, 1e-12, 0.01 |
 //! | `project` | project onto H = 0 after each step | false |
@@ -252,14 +254,15 @@ impl IntegratorSpec {
     pub fn build<F: Real>(&self) -> Result<Tier<F>> {
         Ok(match self.kind {
             TierKind::Dopri5 => {
-                if self.h.is_some() || self.eta.is_some() {
+                if self.h.is_some() {
                     return Err(Error::invalid(
                         "integrator",
-                        "dopri5 chooses its own steps: use rtol/atol/h0, not h or eta",
+                        "dopri5 chooses its own steps: use rtol/atol/h0 (and eta as a cap), not h",
                     ));
                 }
                 Tier::Dopri5(Controller {
                     rtol: F::of(self.rtol.unwrap_or(1e-10)),
+                    eta: F::of(self.eta.unwrap_or(0.5)),
                     atol: F::of(self.atol.unwrap_or(1e-12)),
                     h0: F::of(self.h0.unwrap_or(0.01)),
                     h_min: F::of(self.h_min.unwrap_or(1e-12)),
@@ -312,15 +315,93 @@ pub struct TransportScene {
     pub integrator: IntegratorSpec,
     #[serde(default = "million")]
     pub max_steps: u64,
+    #[serde(default)]
+    pub research: Option<ResearchSpec>,
+    /// Ray indices whose polylines `transport.render` writes.
+    #[serde(default)]
+    pub dump_rays: Vec<usize>,
+}
+
+/// Research-mode presets (closed set).
+#[derive(Clone, Copy, Debug, Deserialize, PartialEq, Eq)]
+#[serde(rename_all = "snake_case")]
+pub enum ResearchPreset {
+    /// Deterministic validation: the scene's integrator is replaced by
+    /// Dormand–Prince with `rtol 1e-12, atol 1e-14, eta 0.5, h0 0.01`, no
+    /// projection, `max_steps` 1e6. Transport draws no random numbers and
+    /// every ray is computed independently in input order, so results are
+    /// bit-identical across runs and thread counts (judge case
+    /// `transport_deterministic_threads`).
+    Validate,
+}
+
+/// `research: {preset: validate}`.
+#[derive(Clone, Copy, Debug, Deserialize, PartialEq, Eq)]
+#[serde(deny_unknown_fields)]
+pub struct ResearchSpec {
+    pub preset: ResearchPreset,
+}
+
+/// The settings a research-mode run actually uses: the one-line banner and
+/// the first 8 bytes (big-endian) of the SHA-256 of its canonical text.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct ResearchBanner {
+    pub line: String,
+    pub hash: u64,
 }
 
 impl TransportScene {
+    /// The integrator and step cap in effect (research presets override the scene's).
+    fn effective(&self) -> (IntegratorSpec, u64) {
+        match self.research {
+            Some(ResearchSpec {
+                preset: ResearchPreset::Validate,
+            }) => (
+                IntegratorSpec {
+                    kind: TierKind::Dopri5,
+                    h: None,
+                    eta: Some(0.5),
+                    h_min: None,
+                    h_max: None,
+                    rtol: Some(1e-12),
+                    atol: Some(1e-14),
+                    h0: Some(0.01),
+                    project: false,
+                },
+                1_000_000,
+            ),
+            None => (self.integrator, self.max_steps),
+        }
+    }
+
+    /// The research-mode banner and settings hash, when a preset is on.
+    pub fn research_banner(&self) -> Option<ResearchBanner> {
+        use sha2::{Digest, Sha256};
+        let r = self.research?;
+        let (integ, max_steps) = self.effective();
+        let canon = format!(
+            "preset={:?};integrator={integ:?};max_steps={max_steps};task={:?}",
+            r.preset, self.task
+        );
+        let d = Sha256::digest(canon.as_bytes());
+        let hash = d[..8].iter().fold(0u64, |a, &b| (a << 8) | b as u64);
+        let line = format!(
+            "research mode: preset {:?}, integrator {:?} rtol {:e} atol {:e}, max_steps {max_steps}, settings hash {hash:016x}",
+            r.preset,
+            integ.kind,
+            integ.rtol.unwrap_or_default(),
+            integ.atol.unwrap_or_default()
+        );
+        Some(ResearchBanner { line, hash })
+    }
+
     /// The typed task and integration options in precision `F`.
     pub fn build<F: Real>(&self) -> Result<(Task<F>, Options<F>)> {
+        let (integ, max_steps) = self.effective();
         let opt = Options {
-            tier: self.integrator.build()?,
-            project: self.integrator.project,
-            max_steps: self.max_steps,
+            tier: integ.build()?,
+            project: integ.project,
+            max_steps,
         };
         let task = match &self.task {
             TaskSpec::Deflection {
@@ -411,8 +492,42 @@ mod tests {
     }
 
     #[test]
+    fn research_preset_overrides_the_integrator_and_hashes_its_settings() {
+        let text = "renderer: transport\ntask: {type: grin, medium: {type: fibre, n0: 1.5, alpha: 0.5}, rays: [[0,0,0,1,0.1,0]], stop: {type: axis_return}}\nintegrator: {type: rk4, h: 0.1}\n";
+        let plain = parse(&doc(text)).unwrap();
+        assert!(plain.research_banner().is_none());
+        let on = parse(&doc(&format!("{text}research: {{preset: validate}}\n"))).unwrap();
+        let (_, o) = on.build::<f64>().unwrap();
+        assert!(matches!(o.tier, Tier::Dopri5(c) if c.rtol == 1e-12));
+        let b = on.research_banner().unwrap();
+        assert!(
+            b.line.starts_with("research mode: preset Validate"),
+            "{}",
+            b.line
+        );
+        assert_eq!(b.hash, on.research_banner().unwrap().hash);
+        // The scene's own integrator does not enter the hash; the task does.
+        let other = parse(&doc(&format!(
+            "{}research: {{preset: validate}}\n",
+            text.replace("h: 0.1", "h: 0.2")
+        )))
+        .unwrap();
+        assert_eq!(other.research_banner().unwrap().hash, b.hash);
+        let moved = parse(&doc(&format!(
+            "{}research: {{preset: validate}}\n",
+            text.replace("0.1,0]", "0.2,0]")
+        )))
+        .unwrap();
+        assert_ne!(moved.research_banner().unwrap().hash, b.hash);
+    }
+
+    #[test]
     fn bad_integrator_and_unknown_keys_are_refused() {
         let base = "renderer: transport\ntask: {type: grin, medium: {type: fibre, n0: 1.5, alpha: 0.5}, rays: [[0,0,0,1,0.1,0]], stop: {type: axis_return}}\n";
+        assert!(parse(&doc(&format!(
+            "{base}integrator: {{type: dopri5, eta: 0.1, h0: 1}}\n"
+        )))
+        .is_ok());
         for (bad, want) in [
             ("integrator: {type: rk4}\n", "exactly one"),
             ("integrator: {type: rk4, h: 0.1, eta: 0.1}\n", "exactly one"),

@@ -30,6 +30,9 @@ pub struct Grid<F> {
     /// `nz * ny * nx` values, x fastest.
     pub n: Vec<F>,
     pub outside: F,
+    /// The lens sphere of the sampled medium, if it has one (where a
+    /// lens-exit run stops).
+    pub lens: Option<F>,
 }
 
 impl<F: Real> Grid<F> {
@@ -72,6 +75,7 @@ impl<F: Real> Grid<F> {
             max,
             n,
             outside,
+            lens: medium.boundary_radius(),
         })
     }
 
@@ -211,6 +215,7 @@ impl<F: Real> Medium<F> {
     pub fn boundary_radius(&self) -> Option<F> {
         match self {
             Medium::Luneburg { radius } | Medium::LuneburgCore { radius } => Some(*radius),
+            Medium::Grid(g) => g.lens,
             _ => None,
         }
     }
@@ -344,6 +349,7 @@ mod tests {
             max,
             n,
             outside: 1.0,
+            lens: None,
         };
         for x in [[0.3, -0.7, 0.2], [-1.0, 1.0, 1.0], [0.999, 0.0, -0.5]] {
             let (v, d) = g.n_grad(&x);

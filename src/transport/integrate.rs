@@ -58,11 +58,17 @@ impl<F: Real> StepLaw<F> {
 /// Dormand–Prince step controller: accept when the RMS of
 /// `e_i / (atol + rtol * max(|y0_i|, |y1_i|))` is <= 1, then
 /// `h <- h * clamp(0.9 err^(-1/5), 0.2, 5)` (no growth right after a
-/// rejection), `h` within `[h_min, h_max]`; below `h_min` the ray ends
-/// with [`End::StepUnderflow`].
+/// rejection), `h` within `[h_min, min(h_max, eta * scale(y))]`; below
+/// `h_min` the ray ends with [`End::StepUnderflow`]. The `eta * scale` cap
+/// keeps a step from leaping over a whole periapsis passage, where every
+/// stage can land in near-straight flight and the embedded estimate is
+/// fooled (measured: b = 5.3 from r = 1e12 was "captured" in 21 steps
+/// without it). `rtol` below `8 eps` of the precision is raised to it.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Controller<F> {
     pub rtol: F,
+    /// Step cap as a multiple of the system's scale (`h <= eta * scale`).
+    pub eta: F,
     pub atol: F,
     pub h0: F,
     pub h_min: F,
@@ -526,12 +532,13 @@ pub fn trace<F: Real, const N: usize, H: Hamiltonian<F, N>>(
         let y = out.y;
         let (h, mut y1, local_err) = match opt.tier {
             Tier::Dopri5(c) => {
-                let h = h_ctl;
+                let h = h_ctl.min(c.eta * sys.scale(&y)).max(c.h_min);
+                let rtol = c.rtol.max(F::of(8.0) * F::epsilon());
                 let (y5, e, k7) = dopri5_step(sys, &y, &k1, h);
                 let mut acc = F::zero();
                 let mut emax = F::zero();
                 for i in 0..N {
-                    let sc = c.atol + c.rtol * y[i].abs().max(y5[i].abs());
+                    let sc = c.atol + rtol * y[i].abs().max(y5[i].abs());
                     let q = e[i] / sc;
                     acc += q * q;
                     emax = emax.max(e[i].abs());
@@ -683,6 +690,7 @@ mod tests {
             (
                 Tier::Dopri5(Controller {
                     rtol: 1e-11,
+                    eta: 0.5,
                     atol: 1e-13,
                     h0: 0.01,
                     h_min: 1e-12,

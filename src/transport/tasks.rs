@@ -26,6 +26,60 @@ pub enum Task<F> {
     Grin(GrinRays<F>),
 }
 
+/// Most points kept per dumped polyline.
+pub const MAX_POLYLINE: usize = 1 << 20;
+
+/// A dumped ray: its index and `(x, y, z, lambda)` at every accepted step
+/// (Cartesian; spacetimes map `(r, theta, phi)` with `r` the radial
+/// coordinate, signed `l` for Ellis).
+pub type Polyline<F> = (usize, Vec<[F; 4]>);
+
+fn cart6<F: Real>(y: &[F; 6]) -> [F; 3] {
+    [y[0], y[1], y[2]]
+}
+
+fn cart8<F: Real>(y: &[F; 8]) -> [F; 3] {
+    let (st, ct) = y[2].sin_cos();
+    let (sp, cp) = y[3].sin_cos();
+    [y[1] * st * cp, y[1] * st * sp, y[1] * ct]
+}
+
+/// Traces one ray, recording its polyline when `record` (the only
+/// allocation, and only for dumped rays).
+fn traced<F: Real, const N: usize, H: super::hamiltonian::Hamiltonian<F, N>>(
+    sys: &H,
+    y0: [F; N],
+    opt: &Options<F>,
+    ev: &[Event<F>],
+    record: bool,
+    cart: fn(&[F; N]) -> [F; 3],
+) -> (Trace<F, N>, Vec<[F; 4]>) {
+    if !record {
+        return (trace(sys, y0, opt, ev, |_, _| {}), Vec::new());
+    }
+    let mut pts = Vec::new();
+    let t = trace(sys, y0, opt, ev, |l, y| {
+        if pts.len() < MAX_POLYLINE {
+            let c = cart(y);
+            pts.push([c[0], c[1], c[2], l]);
+        }
+    });
+    (t, pts)
+}
+
+fn check_dump(dump: &[usize], n: usize, budget: &MemBudget) -> Result<()> {
+    if let Some(i) = dump.iter().find(|&&i| i >= n) {
+        return Err(Error::invalid(
+            "dump_rays",
+            format!("ray {i} does not exist ({n} rays)"),
+        ));
+    }
+    budget.check(
+        "polylines",
+        bytes_for(dump.len() as u64, MAX_POLYLINE as u64 * 32),
+    )
+}
+
 /// `reason` code of a GRIN ray that never meets its lens.
 pub const MISSED_LENS: i32 = -5;
 
@@ -57,6 +111,7 @@ pub struct DeflectionOut<F> {
     pub err_est: Vec<F>,
     /// [`End::code`].
     pub reason: Vec<i32>,
+    pub polylines: Vec<Polyline<F>>,
 }
 
 fn budget_rays(budget: &MemBudget, what: &str, n: usize, per_ray: u64) -> Result<()> {
@@ -165,7 +220,9 @@ pub fn deflection<F: Real>(
     task: &Deflection<F>,
     opt: &Options<F>,
     budget: &MemBudget,
+    dump: &[usize],
 ) -> Result<DeflectionOut<F>> {
+    check_dump(dump, task.impact.len(), budget)?;
     validate_radii(&task.spacetime, task.r_start, task.r_end, task.horizon_eps)?;
     if task.r_end < task.r_start {
         return Err(Error::invalid(
@@ -190,12 +247,23 @@ pub fn deflection<F: Real>(
         })
         .collect::<Result<_>>()?;
     let traces = par_collect("transport.deflection", starts.len(), |i| {
-        trace(&task.spacetime, starts[i], opt, &ev, |_, _| {})
+        traced(
+            &task.spacetime,
+            starts[i],
+            opt,
+            &ev,
+            dump.contains(&i),
+            cart8,
+        )
     });
     let mut out = DeflectionOut::default();
     let pi = F::PI();
     let is_schw = matches!(task.spacetime, Spacetime::Schwarzschild { .. });
-    for t in &traces {
+    for (i, (t, poly)) in traces.into_iter().enumerate() {
+        if dump.contains(&i) {
+            out.polylines.push((i, poly));
+        }
+        let t = &t;
         let captured = is_schw && t.end == End::Event(1);
         out.deflection
             .push(if captured { F::zero() } else { t.y[3] - pi });
@@ -244,6 +312,7 @@ pub struct ObserverOut<F> {
     pub h_drift: Vec<F>,
     pub err_est: Vec<F>,
     pub reason: Vec<i32>,
+    pub polylines: Vec<Polyline<F>>,
 }
 
 fn observer_trace<F: Real>(
@@ -251,7 +320,8 @@ fn observer_trace<F: Real>(
     ev: &[Event<F>],
     opt: &Options<F>,
     psi_deg: f64,
-) -> Trace<F, 8> {
+    record: bool,
+) -> (Trace<F, 8>, Vec<[F; 4]>) {
     let st64 = scan.spacetime.to_f64();
     let p = st64.static_observer_momentum(scan.r_obs, psi_deg.to_radians());
     let y = [
@@ -265,7 +335,7 @@ fn observer_trace<F: Real>(
         p[3],
     ]
     .map(F::of);
-    trace(&scan.spacetime, y, opt, ev, |_, _| {})
+    traced(&scan.spacetime, y, opt, ev, record, cart8)
 }
 
 fn observer_setup<F: Real>(scan: &ObserverScan<F>, opt: &Options<F>) -> Result<Vec<Event<F>>> {
@@ -298,14 +368,20 @@ pub fn observer_scan<F: Real>(
     scan: &ObserverScan<F>,
     opt: &Options<F>,
     budget: &MemBudget,
+    dump: &[usize],
 ) -> Result<ObserverOut<F>> {
     let ev = observer_setup(scan, opt)?;
+    check_dump(dump, scan.angles_deg.len(), budget)?;
     budget_rays(budget, "observer rays", scan.angles_deg.len(), 64)?;
     let traces = par_collect("transport.observer", scan.angles_deg.len(), |i| {
-        observer_trace(scan, &ev, opt, scan.angles_deg[i])
+        observer_trace(scan, &ev, opt, scan.angles_deg[i], dump.contains(&i))
     });
     let mut out = ObserverOut::default();
-    for t in &traces {
+    for (i, (t, poly)) in traces.into_iter().enumerate() {
+        if dump.contains(&i) {
+            out.polylines.push((i, poly));
+        }
+        let t = &t;
         out.captured.push((t.end == End::Event(1)) as u8);
         push_common(
             &mut out.steps,
@@ -327,7 +403,7 @@ pub fn shadow_angle<F: Real>(scan: &ObserverScan<F>, opt: &Options<F>, iters: u3
     let (mut lo, mut hi) = (0.0f64, 180.0f64);
     for _ in 0..iters {
         let mid = 0.5 * (lo + hi);
-        let t = observer_trace(scan, &ev, opt, mid);
+        let (t, _) = observer_trace(scan, &ev, opt, mid, false);
         if t.end == End::Event(0) {
             hi = mid;
         } else {
@@ -372,6 +448,7 @@ pub struct GrinOut<F> {
     pub err_est: Vec<F>,
     /// [`End::code`], or [`MISSED_LENS`].
     pub reason: Vec<i32>,
+    pub polylines: Vec<Polyline<F>>,
 }
 
 /// Advances `o` along unit `d` to the sphere of radius `r` if it starts
@@ -396,7 +473,9 @@ pub fn grin_rays<F: Real>(
     task: &GrinRays<F>,
     opt: &Options<F>,
     budget: &MemBudget,
+    dump: &[usize],
 ) -> Result<GrinOut<F>> {
+    check_dump(dump, task.rays.len(), budget)?;
     budget_rays(budget, "grin rays", task.rays.len(), 96)?;
     let lens = task.medium.boundary_radius();
     let ev: Vec<Event<F>> = match task.stop {
@@ -470,11 +549,17 @@ pub fn grin_rays<F: Real>(
         }));
     }
     let traces = par_collect("transport.grin", starts.len(), |i| {
-        starts[i].map(|y0| trace(&medium, y0, &opt, &ev, |_, _| {}))
+        starts[i].map(|y0| traced(&medium, y0, &opt, &ev, dump.contains(&i), cart6))
     });
     let mut out = GrinOut::default();
-    for (i, t) in traces.iter().enumerate() {
-        match t {
+    for (i, t) in traces.into_iter().enumerate() {
+        let t = t.map(|(t, poly)| {
+            if dump.contains(&i) {
+                out.polylines.push((i, poly));
+            }
+            t
+        });
+        match &t {
             Some(t) => {
                 out.end_point.push([t.y[0], t.y[1], t.y[2]]);
                 let p = (t.y[3] * t.y[3] + t.y[4] * t.y[4] + t.y[5] * t.y[5]).sqrt();
@@ -536,7 +621,7 @@ mod tests {
             r_end: 1000.0,
             horizon_eps: 0.01,
         };
-        let out = deflection(&task, &rk4(0.01), &budget()).unwrap();
+        let out = deflection(&task, &rk4(0.01), &budget(), &[]).unwrap();
         for (d, b) in out.deflection.iter().zip(&task.impact) {
             let want = -2.0 * (b / 1000.0f64).asin();
             assert!((d - want).abs() < 1e-8, "b={b}: {d} vs {want}");
@@ -554,7 +639,7 @@ mod tests {
             r_end: 1000.0,
             horizon_eps: 0.01,
         };
-        let out = deflection(&task, &rk4(0.005), &budget()).unwrap();
+        let out = deflection(&task, &rk4(0.005), &budget(), &[]).unwrap();
         assert_eq!(out.captured, vec![1, 0, 1, 0]);
         assert!(
             out.deflection[1] > 4.0,
@@ -572,7 +657,7 @@ mod tests {
             r_end: 100.0,
             horizon_eps: 0.01,
         };
-        let out = deflection(&task, &rk4(0.01), &budget()).unwrap();
+        let out = deflection(&task, &rk4(0.01), &budget(), &[]).unwrap();
         assert_eq!(out.side, vec![-1, 1]);
         assert_eq!(out.reason, vec![1, 0]);
     }
@@ -589,6 +674,7 @@ mod tests {
         let opt = Options {
             tier: Tier::Dopri5(Controller {
                 rtol: 1e-12,
+                eta: 0.5,
                 atol: 1e-12,
                 h0: 0.01,
                 h_min: 1e-12,
@@ -598,7 +684,7 @@ mod tests {
             max_steps: 100_000,
         };
         assert_eq!(
-            observer_scan(&scan, &opt, &budget()).unwrap().captured,
+            observer_scan(&scan, &opt, &budget(), &[]).unwrap().captured,
             vec![1, 0]
         );
         let a = shadow_angle(&scan, &opt, 30).unwrap();
@@ -623,6 +709,7 @@ mod tests {
                 max_steps: 100_000,
             },
             &budget(),
+            &[],
         )
         .unwrap();
         for p in &out.end_point[..9] {
@@ -659,6 +746,7 @@ mod tests {
                 max_steps: 1_000_000,
             },
             &budget(),
+            &[],
         )
         .unwrap();
         for p in &out.end_point {

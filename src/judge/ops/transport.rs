@@ -38,7 +38,7 @@ use crate::scene::transport::{
 use crate::tensor::{Outputs, Tensor};
 use crate::transport::integrate::Options;
 use crate::transport::tasks::{
-    deflection, grin_rays, observer_scan, shadow_angle, GrinRays, GrinStop, Task,
+    deflection, grin_rays, observer_scan, shadow_angle, GrinRays, GrinStop, Polyline, Task,
 };
 
 pub const OPS: &[OpEntry] = &[
@@ -93,18 +93,51 @@ fn f64x3(v: Vec<[f64; 3]>) -> Result<Tensor> {
     Tensor::from_shape_vec(&[n, 3], v.into_iter().flatten().collect())
 }
 
-/// One traced task's outputs (and the quantity convergence studies use).
+/// `polylines` (k, L, 4), each padded with its last point, and
+/// `polyline_len` (k) for the dumped rays; nothing when none are dumped.
+fn polylines<F: Real>(p: &[Polyline<F>], out: &mut Outputs) -> Result<()> {
+    if p.is_empty() {
+        return Ok(());
+    }
+    let l = p.iter().map(|(_, v)| v.len()).max().unwrap_or(0).max(1);
+    let mut flat = Vec::with_capacity(p.len() * l * 4);
+    for (_, v) in p {
+        let last = v.last().copied().unwrap_or([F::zero(); 4]);
+        flat.extend(
+            v.iter()
+                .chain(std::iter::repeat(&last))
+                .take(l)
+                .flatten()
+                .copied(),
+        );
+    }
+    out.tensor("polylines", Tensor::real(&[p.len(), l, 4], flat)?);
+    out.tensor(
+        "polyline_len",
+        i32s(p.iter().map(|(_, v)| v.len() as i32).collect())?,
+    );
+    out.tensor(
+        "polyline_ray",
+        i32s(p.iter().map(|(i, _)| *i as i32).collect())?,
+    );
+    Ok(())
+}
+
+/// One traced task's outputs, and per ray the quantity convergence studies
+/// use (deflection, capture flag, period, or the end point's coordinates).
 fn run_task<F: Real>(
     task: &Task<F>,
     opt: &Options<F>,
     ctx: &OpCtx,
+    dump: &[usize],
     out: &mut Outputs,
-) -> Result<Vec<f64>> {
+) -> Result<Vec<Vec<f64>>> {
     let t = Instant::now();
-    let (rays, steps, q): (usize, Vec<i32>, Vec<f64>) = match task {
+    let (rays, steps, q): (usize, Vec<i32>, Vec<Vec<f64>>) = match task {
         Task::Deflection(d) => {
-            let r = deflection(d, opt, &ctx.budget)?;
-            let q = r.deflection.iter().map(|v| v.f64()).collect();
+            let r = deflection(d, opt, &ctx.budget, dump)?;
+            polylines(&r.polylines, out)?;
+            let q = r.deflection.iter().map(|v| vec![v.f64()]).collect();
             out.tensor("deflection", vec1(r.deflection)?);
             out.tensor("escaped", u8s(r.captured.iter().map(|c| 1 - c).collect())?);
             out.tensor("captured", u8s(r.captured)?);
@@ -115,8 +148,9 @@ fn run_task<F: Real>(
             (d.impact.len(), r.steps, q)
         }
         Task::Observer(s) => {
-            let r = observer_scan(s, opt, &ctx.budget)?;
-            let q = r.captured.iter().map(|&c| c as f64).collect();
+            let r = observer_scan(s, opt, &ctx.budget, dump)?;
+            polylines(&r.polylines, out)?;
+            let q = r.captured.iter().map(|&c| vec![c as f64]).collect();
             out.tensor("captured", u8s(r.captured)?);
             out.tensor("h_drift", vec1(r.h_drift)?)
                 .tensor("err_est", vec1(r.err_est)?);
@@ -124,9 +158,14 @@ fn run_task<F: Real>(
             (s.angles_deg.len(), r.steps, q)
         }
         Task::Grin(g) => {
-            let r = grin_rays(g, opt, &ctx.budget)?;
-            let ends: Vec<[f64; 3]> = r.end_point.iter().map(|p| p.map(|v| v.f64())).collect();
-            let q: Vec<f64> = match g.stop {
+            let r = grin_rays(g, opt, &ctx.budget, dump)?;
+            polylines(&r.polylines, out)?;
+            let ends: Vec<Vec<f64>> = r
+                .end_point
+                .iter()
+                .map(|p| p.iter().map(|v| v.f64()).collect())
+                .collect();
+            let q: Vec<Vec<f64>> = match g.stop {
                 GrinStop::AxisReturn => {
                     let period: Vec<F> = r
                         .end_point
@@ -134,7 +173,7 @@ fn run_task<F: Real>(
                         .zip(&g.rays)
                         .map(|(p, o)| p[0] - F::of(o[0]))
                         .collect();
-                    let q = period.iter().map(|v| v.f64()).collect();
+                    let q = period.iter().map(|v| vec![v.f64()]).collect();
                     out.tensor("period", vec1(period)?);
                     q
                 }
@@ -144,16 +183,16 @@ fn run_task<F: Real>(
                         Tensor::real3(&[r.end_point.len()], &r.end_point)?,
                     );
                     out.tensor("exit_dir", Tensor::real3(&[r.end_dir.len()], &r.end_dir)?);
-                    ends.iter().flatten().copied().collect()
+                    ends
                 }
                 GrinStop::Approach { .. } => {
                     out.tensor(
                         "conjugate_point",
                         Tensor::real3(&[r.end_point.len()], &r.end_point)?,
                     );
-                    ends.iter().flatten().copied().collect()
+                    ends
                 }
-                GrinStop::Steps { .. } => r.h_drift.iter().map(|v| v.f64()).collect(),
+                GrinStop::Steps { .. } => ends,
             };
             out.tensor(
                 "end_point",
@@ -179,7 +218,13 @@ fn run_task<F: Real>(
 fn render_in<F: Real>(ctx: &OpCtx, s: &TransportScene) -> Result<Outputs> {
     let (task, opt) = s.build::<F>()?;
     let mut out = Outputs::default();
-    run_task(&task, &opt, ctx, &mut out)?;
+    if let Some(b) = s.research_banner() {
+        // warn, not info: the preset overrides the scene's integrator, and the
+        // banner must show at the default log level.
+        tracing::warn!("{}", b.line);
+        out.counter("research_settings_hash", b.hash);
+    }
+    run_task(&task, &opt, ctx, &s.dump_rays, &mut out)?;
     Ok(out)
 }
 
@@ -643,7 +688,7 @@ fn grin_closed_form(ctx: &OpCtx) -> Result<Outputs> {
 
 fn convergence_in<F: Real>(ctx: &OpCtx, s: &TransportScene, factors: &[f64]) -> Result<Outputs> {
     let (task, opt) = s.build::<F>()?;
-    let mut levels: Vec<Vec<f64>> = vec![];
+    let mut levels: Vec<Vec<Vec<f64>>> = vec![];
     let mut steps = vec![];
     for &k in factors {
         let o = Options {
@@ -651,15 +696,24 @@ fn convergence_in<F: Real>(ctx: &OpCtx, s: &TransportScene, factors: &[f64]) -> 
             ..opt
         };
         let mut tmp = Outputs::default();
-        levels.push(run_task(&task, &o, ctx, &mut tmp)?);
+        levels.push(run_task(&task, &o, ctx, &[], &mut tmp)?);
         steps.push(tmp.counters.get("steps").copied().unwrap_or(0) as f64);
     }
     let n = levels[0].len();
-    // Exact agreement leaves no order to measure: 0, so an order gate fails.
+    // Differences are Euclidean norms over a ray's quantity (a point's three
+    // coordinates). Exact agreement leaves no order to measure: 0, so an
+    // order gate fails.
+    let dist = |a: &[f64], b: &[f64]| {
+        a.iter()
+            .zip(b)
+            .map(|(x, y)| (x - y) * (x - y))
+            .sum::<f64>()
+            .sqrt()
+    };
     let order: Vec<f64> = (0..n)
         .map(|i| {
-            let d1 = (levels[0][i] - levels[1][i]).abs();
-            let d2 = (levels[1][i] - levels[2][i]).abs();
+            let d1 = dist(&levels[0][i], &levels[1][i]);
+            let d2 = dist(&levels[1][i], &levels[2][i]);
             if d1 > 0.0 && d2 > 0.0 {
                 (d1 / d2).log2() / (factors[0] / factors[1]).log2()
             } else {
@@ -669,9 +723,11 @@ fn convergence_in<F: Real>(ctx: &OpCtx, s: &TransportScene, factors: &[f64]) -> 
         .collect();
     let mut out = Outputs::default();
     out.tensor("order", f64s(order)?);
+    let k = levels[0].first().map_or(0, Vec::len);
+    let flat: Vec<f64> = levels.into_iter().flatten().flatten().collect();
     out.tensor(
         "levels",
-        Tensor::from_shape_vec(&[factors.len(), n], levels.into_iter().flatten().collect())?,
+        Tensor::from_shape_vec(&[factors.len(), n, k], flat)?,
     );
     out.tensor("level_steps", f64s(steps)?);
     Ok(out)
@@ -710,7 +766,7 @@ fn drift_in<F: Real>(ctx: &OpCtx, s: &TransportScene, n: [u64; 2]) -> Result<Out
             stop: GrinStop::Steps { n: k },
             ..g.clone()
         };
-        let r = grin_rays(&t, &opt, &ctx.budget)?;
+        let r = grin_rays(&t, &opt, &ctx.budget, &[])?;
         Ok(r.h_drift.iter().map(|v| v.f64()).collect())
     };
     let (a, b) = (run(n[0])?, run(n[1])?);
