@@ -3,8 +3,6 @@
 //! `Rays { o, d, t0, t1, pixel }`. A ray that misses the box has `t1 <= t0`
 //! (both set to `near`); no NaN or Inf ever leaves this stage.
 
-use ndarray::{ArrayD, IxDyn};
-
 use crate::budget::{bytes_for, MemBudget};
 use crate::camera::Camera;
 use crate::error::{Error, Result};
@@ -178,14 +176,14 @@ impl<F: Real> Rays<F> {
 
     /// The rays as one (N, 9) float64 array `ox oy oz dx dy dz t0 t1 pixel`:
     /// the format `--dump-failing` writes and `render --rays` replays.
-    pub fn to_tensor(&self) -> Tensor {
+    pub fn to_tensor(&self) -> Result<Tensor> {
         let mut v = Vec::with_capacity(self.len() * 9);
         for i in 0..self.len() {
             v.extend(self.o[i].iter().map(|x| x.f64()));
             v.extend(self.d[i].iter().map(|x| x.f64()));
             v.extend([self.t0[i].f64(), self.t1[i].f64(), self.pixel[i] as f64]);
         }
-        Tensor::F64(ArrayD::from_shape_vec(IxDyn(&[self.len(), 9]), v).expect("n*9 values"))
+        Tensor::from_shape_vec(&[self.len(), 9], v)
     }
 
     /// Reads rays from the (N, 9) layout of [`Rays::to_tensor`]; `at` names
@@ -382,7 +380,7 @@ mod tests {
         let cam = Camera::pinhole_look_at([0.0, 0.0, 3.0], [0.0; 3], [0.0, 1.0, 0.0], 40.0, 4, 4)
             .unwrap();
         let r = f_ray::<f64>(&cam, &RayGen::new(4, 4), &MemBudget::fixed(1 << 20)).unwrap();
-        let back = Rays::<f64>::from_tensor(&r.to_tensor(), "x").unwrap();
+        let back = Rays::<f64>::from_tensor(&r.to_tensor().unwrap(), "x").unwrap();
         assert_eq!(back, r);
     }
 }

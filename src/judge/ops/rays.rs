@@ -133,7 +133,7 @@ fn generate_in<F: Real>(ctx: &OpCtx, out: &mut Outputs) -> Result<()> {
     out.metric("time_s", s)
         .metric("mrays_per_s", r.len() as f64 / s / 1e6);
     if ctx.dump {
-        out.tensor("rays", r.to_tensor());
+        out.tensor("rays", r.to_tensor()?);
     }
     rays_outputs(&r, &shape, out)
 }

@@ -163,7 +163,7 @@ fn run_chain<F: Real>(ctx: &OpCtx, chain: Chain, buffers: bool) -> Result<Output
     let mut out = Outputs::default();
     render_outputs(&r, &mut out)?;
     if ctx.dump && ctx.rays.is_none() {
-        out.tensor("rays", f_ray::<F>(&cam, &gen, &ctx.budget)?.to_tensor());
+        out.tensor("rays", f_ray::<F>(&cam, &gen, &ctx.budget)?.to_tensor()?);
     }
     if let (true, Some(s), Some(it)) = (buffers, &r.samples, &r.integrated) {
         let m = [s.len()];

@@ -163,7 +163,7 @@ fn batch<F: Real>(ctx: &OpCtx, sc: &VoxelScene) -> Result<Batch<F>> {
 
 /// The batch in the (N, 9) dump layout of `Rays::to_tensor` (`--dump-failing`;
 /// `render --rays` replays it). An infinite far is written as 1e30.
-fn dump_rays<F: Real>(b: &Batch<F>) -> Tensor {
+fn dump_rays<F: Real>(b: &Batch<F>) -> Result<Tensor> {
     let n = b.o.len();
     let far = if b.far.is_finite() { b.far } else { 1e30 };
     Rays {
@@ -269,7 +269,7 @@ fn render_in<F: CastReal>(ctx: &OpCtx, sc: &VoxelScene, tree: &Octree) -> Result
     let s = t0.elapsed().as_secs_f64();
     let mut out = Outputs::default();
     if ctx.dump {
-        out.tensor("rays", dump_rays(&b));
+        out.tensor("rays", dump_rays(&b)?);
     }
     out.metric("cast_s", s)
         .metric("mrays_per_s", n as f64 / s.max(1e-12) / 1e6);
