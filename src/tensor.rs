@@ -5,7 +5,7 @@ use std::collections::BTreeMap;
 use std::path::Path;
 
 use ndarray::{ArrayD, IxDyn};
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 
 use crate::error::{Error, Result};
 use crate::real::Real;
@@ -264,16 +264,16 @@ impl Outputs {
 }
 
 /// Shape and dtype of a tensor, for reports.
-#[derive(Clone, Debug, Serialize)]
+#[derive(Clone, Debug, Serialize, Deserialize)]
 pub struct TensorInfo {
-    pub dtype: &'static str,
+    pub dtype: String,
     pub shape: Vec<usize>,
 }
 
 impl From<&Tensor> for TensorInfo {
     fn from(t: &Tensor) -> Self {
         TensorInfo {
-            dtype: t.dtype(),
+            dtype: t.dtype().to_string(),
             shape: t.shape().to_vec(),
         }
     }

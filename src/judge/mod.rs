@@ -1,4 +1,27 @@
 //! hpjudge: manifests, thresholds, assertions, verdicts, scoreboard,
 //! artifacts and perf triage.
+//!
+//! | file | job |
+//! | --- | --- |
+//! | `manifest.rs` | cases, includes, validation on load |
+//! | `thresholds.rs` | tolerances, gates, time limits, device profiles |
+//! | `perf.rs` | perf scenarios, noise-aware `compare` |
+//! | `asserts.rs` | the closed set of assertions and their checks |
+//! | `ops/` | the table of operations cases name |
+//! | `worker.rs` | one case on one backend, in a child process |
+//! | `runner.rs` | the run: workers, time limits, scoreboard, summary |
+//! | `scoreboard.rs`, `junit.rs`, `artifacts.rs` | what a run writes |
 
+pub mod artifacts;
+pub mod asserts;
+pub mod env;
+pub mod junit;
+pub mod load;
+pub mod manifest;
 pub mod ops;
+pub mod perf;
+pub mod runner;
+pub mod scoreboard;
+pub mod stats;
+pub mod thresholds;
+pub mod worker;

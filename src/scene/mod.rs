@@ -74,6 +74,20 @@ pub fn from_value<T: DeserializeOwned>(value: &Value, at: &str) -> Result<T> {
 impl SceneDoc {
     /// Loads a scene file and applies `key=value` overrides (see [`apply_set`]).
     pub fn load(path: &Path, sets: &[String]) -> Result<SceneDoc> {
+        let mut parsed = Vec::with_capacity(sets.len());
+        for s in sets {
+            let (k, v) = s
+                .split_once('=')
+                .ok_or_else(|| Error::invalid(format!("--set {s}"), "expected key=value"))?;
+            let v: Value = serde_yaml::from_str(v)
+                .map_err(|e| Error::invalid(format!("--set {s}"), e.to_string()))?;
+            parsed.push((k.trim().to_string(), v));
+        }
+        SceneDoc::load_values(path, &parsed)
+    }
+
+    /// Loads a scene file and applies already-parsed overrides in order.
+    pub fn load_values(path: &Path, sets: &[(String, Value)]) -> Result<SceneDoc> {
         let mut value = read_yaml(path)?;
         if !value.is_mapping() {
             return Err(Error::invalid(
@@ -81,14 +95,9 @@ impl SceneDoc {
                 "a scene must be a YAML mapping",
             ));
         }
-        for s in sets {
-            let (k, v) = s
-                .split_once('=')
-                .ok_or_else(|| Error::invalid(format!("--set {s}"), "expected key=value"))?;
-            let v: Value = serde_yaml::from_str(v)
-                .map_err(|e| Error::invalid(format!("--set {s}"), e.to_string()))?;
-            apply_set(&mut value, k.trim(), v)
-                .map_err(|what| Error::invalid(format!("--set {s}"), what))?;
+        for (k, v) in sets {
+            apply_set(&mut value, k, v.clone())
+                .map_err(|what| Error::invalid(format!("{}: set {k}", path.display()), what))?;
         }
         Ok(SceneDoc {
             path: path.to_path_buf(),

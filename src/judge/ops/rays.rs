@@ -30,6 +30,12 @@ pub const OPS: &[OpEntry] = &[
         run: generate,
     },
     OpEntry {
+        name: "rays.render",
+        doc: "hpjudge render of a rays scene (same as rays.generate)",
+        params: &[],
+        run: generate,
+    },
+    OpEntry {
         name: "rays.clip_reference",
         doc: "independent f64 rays and box entry/exit by face intersection",
         params: &[],
@@ -77,43 +83,60 @@ fn image_shape(gen: &RayGen) -> [usize; 2] {
     [r.height as usize, r.width as usize]
 }
 
-fn rays_outputs<F: Real>(r: &Rays<F>, shape: [usize; 2], out: &mut Outputs) -> Result<()> {
-    out.tensor("o", Tensor::real3(&shape, &r.o)?);
-    out.tensor("d", Tensor::real3(&shape, &r.d)?);
-    out.tensor("t0", Tensor::real(&shape, r.t0.clone())?);
-    out.tensor("t1", Tensor::real(&shape, r.t1.clone())?);
+fn rays_outputs<F: Real>(r: &Rays<F>, shape: &[usize], out: &mut Outputs) -> Result<()> {
+    out.tensor("o", Tensor::real3(shape, &r.o)?);
+    out.tensor("d", Tensor::real3(shape, &r.d)?);
+    out.tensor("t0", Tensor::real(shape, r.t0.clone())?);
+    out.tensor("t1", Tensor::real(shape, r.t1.clone())?);
     let hit: Vec<u8> = (0..r.len()).map(|i| r.hits(i) as u8).collect();
     let hits = hit.iter().filter(|&&h| h == 1).count() as u64;
-    out.tensor("hit", Tensor::from_shape_vec(&shape, hit)?);
-    out.tensor(
-        "pixel",
-        Tensor::from_shape_vec(&shape, r.pixel.iter().map(|&p| p as i32).collect())?,
-    );
+    out.tensor("hit", Tensor::from_shape_vec(shape, hit)?);
+    let pixel: Vec<i32> = r.pixel.iter().map(|&p| p as i32).collect();
+    out.tensor("pixel", Tensor::from_shape_vec(shape, pixel)?);
     out.counter("rays", r.len() as u64).counter("hits", hits);
     Ok(())
 }
 
+/// Camera rays of the scene, or (with `render --rays`) the replayed rays
+/// clipped to the scene's box and interval; with the output shape.
+fn rays_in<F: Real>(ctx: &OpCtx, cam: &Camera, gen: &RayGen) -> Result<(Rays<F>, Vec<usize>)> {
+    match ctx.rays {
+        None => Ok((
+            f_ray::<F>(cam, gen, &ctx.budget)?,
+            image_shape(gen).to_vec(),
+        )),
+        Some(t) => {
+            let mut r = Rays::<F>::from_tensor(t, "--rays")?;
+            let (bmin, bmax) = (gen.aabb.min.map(F::of), gen.aabb.max.map(F::of));
+            let (near, far) = (F::of(gen.near), F::of(gen.far));
+            for i in 0..r.len() {
+                (r.t0[i], r.t1[i]) = clip_aabb(r.o[i], r.d[i], bmin, bmax, near, far);
+            }
+            let n = r.len();
+            Ok((r, vec![n]))
+        }
+    }
+}
+
+fn generate_in<F: Real>(ctx: &OpCtx, out: &mut Outputs) -> Result<()> {
+    let (cam, gen) = view(ctx)?;
+    let t = Instant::now();
+    let (r, shape) = rays_in::<F>(ctx, &cam, &gen)?;
+    let s = t.elapsed().as_secs_f64();
+    out.metric("time_s", s)
+        .metric("mrays_per_s", r.len() as f64 / s / 1e6);
+    if ctx.dump {
+        out.tensor("rays", r.to_tensor());
+    }
+    rays_outputs(&r, &shape, out)
+}
+
 fn generate(ctx: &OpCtx) -> Result<Outputs> {
     ctx.cpu_only()?;
-    let (cam, gen) = view(ctx)?;
-    let shape = image_shape(&gen);
     let mut out = Outputs::default();
-    let t = Instant::now();
     match ctx.precision {
-        Precision::F32 => {
-            let r = f_ray::<f32>(&cam, &gen, &ctx.budget)?;
-            let s = t.elapsed().as_secs_f64();
-            out.metric("time_s", s)
-                .metric("mrays_per_s", r.len() as f64 / s / 1e6);
-            rays_outputs(&r, shape, &mut out)?;
-        }
-        Precision::F64 => {
-            let r = f_ray::<f64>(&cam, &gen, &ctx.budget)?;
-            let s = t.elapsed().as_secs_f64();
-            out.metric("time_s", s)
-                .metric("mrays_per_s", r.len() as f64 / s / 1e6);
-            rays_outputs(&r, shape, &mut out)?;
-        }
+        Precision::F32 => generate_in::<f32>(ctx, &mut out)?,
+        Precision::F64 => generate_in::<f64>(ctx, &mut out)?,
     }
     Ok(out)
 }

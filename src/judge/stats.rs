@@ -1,0 +1,106 @@
+//! Statistics the judge's assertions use: the Kolmogorov–Smirnov test
+//! against U(0, 1) and the Šidák correction.
+
+/// Per-test significance for a family-wise level `alpha` over `m` tests:
+/// `1 - (1 - alpha)^(1/m)`.
+pub fn sidak(alpha: f64, m: usize) -> f64 {
+    1.0 - (1.0 - alpha).powf(1.0 / m.max(1) as f64)
+}
+
+/// The KS statistic `D = sup |F_n(x) - x|` of samples against U(0, 1).
+pub fn ks_statistic_uniform(v: &[f64]) -> f64 {
+    let mut s: Vec<f64> = v.to_vec();
+    s.sort_by(f64::total_cmp);
+    let n = s.len() as f64;
+    let mut d = 0.0f64;
+    for (i, &x) in s.iter().enumerate() {
+        let x = x.clamp(0.0, 1.0);
+        d = d.max((i as f64 + 1.0) / n - x).max(x - i as f64 / n);
+    }
+    d
+}
+
+/// Kolmogorov's limiting survival function `Q(l) = 2 sum_{k>=1} (-1)^(k-1) exp(-2 k^2 l^2)`.
+pub fn kolmogorov_q(l: f64) -> f64 {
+    if l < 0.2 {
+        return 1.0;
+    }
+    let mut s = 0.0;
+    for k in 1..=100 {
+        let k = k as f64;
+        let t = (-2.0 * k * k * l * l).exp();
+        s += if k as u64 % 2 == 1 { t } else { -t };
+        if t < 1e-16 {
+            break;
+        }
+    }
+    (2.0 * s).clamp(0.0, 1.0)
+}
+
+/// p-value of the KS test of `v` against U(0, 1), with Stephens' small-sample
+/// correction `l = (sqrt(n) + 0.12 + 0.11 / sqrt(n)) D`. Values outside [0, 1]
+/// make the p-value 0.
+pub fn ks_uniform_p(v: &[f64]) -> f64 {
+    if v.iter().any(|x| !(0.0..=1.0).contains(x)) {
+        return 0.0;
+    }
+    let n = v.len() as f64;
+    let d = ks_statistic_uniform(v);
+    let sn = n.sqrt();
+    kolmogorov_q((sn + 0.12 + 0.11 / sn) * d)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn kolmogorov_tail_matches_tables() {
+        // Critical values of the Kolmogorov distribution: Q(1.3581) = 0.05, Q(1.6276) = 0.01.
+        assert!((kolmogorov_q(1.3581) - 0.05).abs() < 2e-4);
+        assert!((kolmogorov_q(1.6276) - 0.01).abs() < 1e-4);
+    }
+
+    #[test]
+    fn ks_accepts_a_uniform_lattice_and_rejects_a_squashed_one() {
+        let u: Vec<f64> = (0..1000).map(|i| (i as f64 + 0.5) / 1000.0).collect();
+        assert!(ks_uniform_p(&u) > 0.99);
+        let sq: Vec<f64> = u.iter().map(|x| x * x).collect();
+        assert!(ks_uniform_p(&sq) < 1e-6);
+    }
+
+    #[test]
+    fn sidak_of_one_test_is_alpha() {
+        assert!((sidak(0.01, 1) - 0.01).abs() < 1e-15);
+        assert!(sidak(0.01, 10) < 0.001006 && sidak(0.01, 10) > 0.001004);
+    }
+}
+
+/// Median, 25th and 75th percentiles (linear interpolation) of `v`.
+pub fn quartiles(v: &[f64]) -> (f64, f64, f64) {
+    if v.is_empty() {
+        return (f64::NAN, f64::NAN, f64::NAN);
+    }
+    let mut s = v.to_vec();
+    s.sort_by(f64::total_cmp);
+    let q = |p: f64| {
+        let x = p * (s.len() - 1) as f64;
+        let (i, f) = (x.floor() as usize, x.fract());
+        if i + 1 < s.len() {
+            s[i] * (1.0 - f) + s[i + 1] * f
+        } else {
+            s[i]
+        }
+    };
+    (q(0.5), q(0.25), q(0.75))
+}
+
+#[cfg(test)]
+mod quartile_tests {
+    use super::*;
+
+    #[test]
+    fn quartiles_of_one_to_five() {
+        assert_eq!(quartiles(&[5.0, 1.0, 3.0, 2.0, 4.0]), (3.0, 2.0, 4.0));
+    }
+}
