@@ -1,14 +1,24 @@
 #!/usr/bin/env bash
 # The README's test command: unit and integration tests (cargo test --release),
-# then the full judge suite. The last line printed is the judge's summary,
+# then the full judge suite with every GPU case required to run. On a machine
+# without a Vulkan adapter it installs Mesa's software driver (lavapipe) first
+# (scripts/gpu_setup.sh). The last line printed is the judge's summary,
 # `N passed, N failed, N skipped`. Exit status: non-zero if anything failed.
 set -euo pipefail
 cd "$(dirname "$0")/.."
+hpjudge="${CARGO_TARGET_DIR:-target}/release/hpjudge"
+
+echo "== build"
+cargo build --release --bin hpjudge
+
+echo "== GPU adapter"
+# shellcheck source=scripts/gpu_setup.sh
+source scripts/gpu_setup.sh
+hp_gpu_setup "$hpjudge" || echo "no GPU adapter: every GPU case will fail (--require-gpu)"
 
 echo "== cargo test --release"
 cargo test --release
 
-echo "== hpjudge run TESTS/manifest.yaml"
-cargo build --release --bin hpjudge
+echo "== hpjudge run TESTS/manifest.yaml --require-gpu"
 mkdir -p out/suite
-./target/release/hpjudge run TESTS/manifest.yaml --out out/suite --junit out/suite/junit.xml
+"$hpjudge" run TESTS/manifest.yaml --out out/suite --junit out/suite/junit.xml --require-gpu

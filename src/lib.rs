@@ -7,6 +7,7 @@
 pub mod budget;
 pub mod camera;
 pub mod error;
+pub mod gpu;
 pub mod judge;
 pub mod parallel;
 pub mod pathtrace;

@@ -140,6 +140,26 @@ pub struct Rays<F> {
 }
 
 impl<F: Real> Rays<F> {
+    /// An empty batch with room for `n` rays.
+    pub fn with_capacity(n: usize) -> Self {
+        Rays {
+            o: Vec::with_capacity(n),
+            d: Vec::with_capacity(n),
+            t0: Vec::with_capacity(n),
+            t1: Vec::with_capacity(n),
+            pixel: Vec::with_capacity(n),
+        }
+    }
+
+    /// Appends one ray.
+    pub fn push(&mut self, o: [F; 3], d: [F; 3], t0: F, t1: F, pixel: u32) {
+        self.o.push(o);
+        self.d.push(d);
+        self.t0.push(t0);
+        self.t1.push(t1);
+        self.pixel.push(pixel);
+    }
+
     /// Bytes one ray takes in this layout.
     pub const BYTES_PER_RAY: u64 = (8 * std::mem::size_of::<F>() + 4) as u64;
 
@@ -180,13 +200,7 @@ impl<F: Real> Rays<F> {
         }
         let v = t.to_f64_vec();
         let n = s[0];
-        let mut r = Rays {
-            o: vec![],
-            d: vec![],
-            t0: vec![],
-            t1: vec![],
-            pixel: vec![],
-        };
+        let mut r = Rays::with_capacity(n);
         for i in 0..n {
             let row = &v[i * 9..i * 9 + 9];
             if row.iter().any(|x| !x.is_finite()) {
@@ -205,11 +219,9 @@ impl<F: Real> Rays<F> {
                     format!("ray {i}: pixel {} is not a u32", row[8]),
                 ));
             }
-            r.o.push([F::of(row[0]), F::of(row[1]), F::of(row[2])]);
-            r.d.push([F::of(row[3]), F::of(row[4]), F::of(row[5])]);
-            r.t0.push(F::of(row[6]));
-            r.t1.push(F::of(row[7]));
-            r.pixel.push(row[8] as u32);
+            let o = [F::of(row[0]), F::of(row[1]), F::of(row[2])];
+            let d = [F::of(row[3]), F::of(row[4]), F::of(row[5])];
+            r.push(o, d, F::of(row[6]), F::of(row[7]), row[8] as u32);
         }
         Ok(r)
     }
@@ -277,20 +289,25 @@ pub fn f_ray<F: Real>(cam: &Camera, gen: &RayGen, budget: &MemBudget) -> Result<
         let (t0, t1) = clip_aabb(o, d, bmin, bmax, near, far);
         (o, d, t0, t1, pixel)
     };
-    let all = par_collect("f_ray", n as usize, one_ray);
-    let mut r = Rays {
-        o: Vec::with_capacity(all.len()),
-        d: Vec::with_capacity(all.len()),
-        t0: Vec::with_capacity(all.len()),
-        t1: Vec::with_capacity(all.len()),
-        pixel: Vec::with_capacity(all.len()),
-    };
-    for (o, d, t0, t1, p) in all {
-        r.o.push(o);
-        r.d.push(d);
-        r.t0.push(t0);
-        r.t1.push(t1);
-        r.pixel.push(p);
+    // Tiles of rays computed in parallel, then concatenated with memcpy.
+    const TILE: usize = 4096;
+    let n = n as usize;
+    let tiles = par_collect("f_ray", n.div_ceil(TILE), |t| {
+        let range = t * TILE..((t + 1) * TILE).min(n);
+        let mut r = Rays::with_capacity(range.len());
+        for i in range {
+            let (o, d, t0, t1, p) = one_ray(i);
+            r.push(o, d, t0, t1, p);
+        }
+        r
+    });
+    let mut r = Rays::with_capacity(n);
+    for t in &tiles {
+        r.o.extend_from_slice(&t.o);
+        r.d.extend_from_slice(&t.d);
+        r.t0.extend_from_slice(&t.t0);
+        r.t1.extend_from_slice(&t.t1);
+        r.pixel.extend_from_slice(&t.pixel);
     }
     Ok(r)
 }

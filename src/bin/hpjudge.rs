@@ -380,18 +380,42 @@ fn dispatch(cli: Cli) -> anyhow::Result<Outcome> {
             Ok(Outcome::Ok)
         }
         Cmd::Info { json } => {
-            let v = env::describe(rayon::current_num_threads(), 0, "-", "-", "-", None);
+            let gpu = hotpath::gpu::describe();
+            let v = env::describe(
+                rayon::current_num_threads(),
+                0,
+                "-",
+                "-",
+                "-",
+                Some(gpu.clone()),
+            );
             if json {
                 println!("{}", serde_json::to_string_pretty(&v)?);
-            } else {
-                println!("hpjudge {}", env::VERSION);
+                return Ok(Outcome::Ok);
+            }
+            println!("hpjudge {}", env::VERSION);
+            println!(
+                "cpu:      {} ({} logical CPUs)",
+                env::cpu_model(),
+                env::logical_cpus()
+            );
+            println!("os:       {} {}", env::os_name(), std::env::consts::ARCH);
+            println!(
+                "backends: {} (WGPU_BACKEND)",
+                gpu["backends"].as_str().unwrap_or("?")
+            );
+            let adapters = hotpath::gpu::adapters();
+            if adapters.is_empty() {
+                println!("gpu:      no adapter on these backends (install a Vulkan driver, e.g. mesa-vulkan-drivers)");
+            }
+            for a in &adapters {
                 println!(
-                    "cpu:      {} ({} logical CPUs)",
-                    env::cpu_model(),
-                    env::logical_cpus()
+                    "gpu:      {} [{}, {}] driver {} {}",
+                    a.name, a.backend, a.device_type, a.driver, a.driver_info
                 );
-                println!("os:       {} {}", env::os_name(), std::env::consts::ARCH);
-                println!("gpu:      none (the GPU layer is not built into this version)");
+            }
+            if let Some(e) = gpu["error"].as_str() {
+                println!("gpu error: {e}");
             }
             Ok(Outcome::Ok)
         }

@@ -107,7 +107,13 @@ pub fn load_inputs(
         Some(p) => (p.to_string(), "--profile".to_string()),
         None => {
             let (f, _): (ThresholdsFile, String) = super::load::load_yaml_typed(&th_path)?;
-            pick_profile(&f, std::env::var_os("CI").is_some(), None)
+            let wants_gpu = f.profiles.values().any(|p| p.match_gpu.is_some());
+            let gpu = if wants_gpu {
+                crate::gpu::GpuContext::get().ok().map(|g| g.summary().name)
+            } else {
+                None
+            };
+            pick_profile(&f, std::env::var_os("CI").is_some(), gpu.as_deref())
         }
     };
     let th = Thresholds::load(&th_path, &profile)?;
@@ -145,6 +151,16 @@ pub fn load_inputs(
         root,
         profile_reason: reason,
     })
+}
+
+/// The GPU block of the environment, when the run has GPU cases.
+fn gpu_env(inputs: &Inputs, opts: &RunOptions) -> Option<serde_json::Value> {
+    let any = inputs
+        .manifest
+        .cases
+        .iter()
+        .any(|c| c.case.backends.contains(&BackendKind::Gpu));
+    (any && opts.backend.allows(BackendKind::Gpu)).then(crate::gpu::describe)
 }
 
 /// Whether to draw a progress bar: only on a terminal, never under `--json`
@@ -378,7 +394,14 @@ pub fn run(opts: &RunOptions) -> Result<Scoreboard, JudgeInputError> {
         schema_version: SCHEMA_VERSION,
         hpjudge_version: env::VERSION.to_string(),
         manifest: opts.manifest.display().to_string(),
-        environment: env::describe(threads, opts.seed, &th.profile_name, size, &th.sha256, None),
+        environment: env::describe(
+            threads,
+            opts.seed,
+            &th.profile_name,
+            size,
+            &th.sha256,
+            gpu_env(&inputs, opts),
+        ),
         summary: Summary::default(),
         cases: vec![],
     };
@@ -453,30 +476,28 @@ pub fn run(opts: &RunOptions) -> Result<Scoreboard, JudgeInputError> {
         if !entry.results.is_empty() {
             board.cases.push(entry);
         }
-        board.finish();
-        board.write_atomic(&board_path).map_err(|e| {
-            JudgeInputError::new(
-                &board_path.display().to_string(),
-                "",
-                format!("cannot write: {e}"),
-            )
-        })?;
+        save(&mut board, &board_path)?;
     }
     bar.finish_and_clear();
-    board.finish();
-    board.write_atomic(&board_path).map_err(|e| {
-        JudgeInputError::new(
-            &board_path.display().to_string(),
-            "",
-            format!("cannot write: {e}"),
-        )
-    })?;
+    save(&mut board, &board_path)?;
     if let Some(j) = &opts.junit {
         std::fs::write(j, to_junit(&board)).map_err(|e| {
             JudgeInputError::new(&j.display().to_string(), "", format!("cannot write: {e}"))
         })?;
     }
     Ok(board)
+}
+
+/// Finishes the board (sort, summary) and writes it atomically.
+fn save(board: &mut Scoreboard, path: &Path) -> Result<(), JudgeInputError> {
+    board.finish();
+    board.write_atomic(path).map_err(|e| {
+        JudgeInputError::new(
+            &path.display().to_string(),
+            "",
+            format!("cannot write: {e}"),
+        )
+    })
 }
 
 fn print_row(entry: &CaseEntry, r: &BackendResult) {

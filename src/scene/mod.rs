@@ -6,8 +6,11 @@
 //! which rejects unknown keys. Errors name the file and the key path.
 
 pub mod camera;
+pub mod pathtrace;
 pub mod rays;
+pub mod transport;
 pub mod volume;
+pub mod voxels;
 
 use std::path::{Path, PathBuf};
 
@@ -165,6 +168,9 @@ pub fn validate(doc: &SceneDoc) -> Result<()> {
     match doc.renderer()? {
         "rays" => rays::parse(doc).and_then(|v| v.build()).map(drop),
         "volume" => volume::load(doc).map(drop),
+        "pathtrace" => pathtrace::parse(doc).map(drop),
+        "transport" => transport::parse(doc).map(drop),
+        "voxels" => voxels::parse(doc).map(drop),
         other => Err(Error::invalid(
             doc.at(),
             format!(

@@ -1,1 +1,19 @@
-//! Curved-ray transport: GRIN media and null geodesics (seed 002).
+//! Curved-ray transport (seed 002): one Hamiltonian core for gradient-index
+//! optics and null geodesics, with tiered integrators.
+//!
+//! - [`hamiltonian`]: the interface (`H`, Hamilton's equations, step scale,
+//!   constraint projection) on stack-array states `y = (x, p)`.
+//! - [`grin`]: GRIN media (Luneburg, Maxwell fish-eye, parabolic fibre,
+//!   sech, dense grid), `H = (|p|^2 - n^2) / 2`.
+//! - [`metric`]: spacetimes (Minkowski, Schwarzschild, Ellis wormhole),
+//!   `H = g^{mu nu} p_mu p_nu / 2`.
+//! - [`integrate`]: tiers (RK4, Dormand–Prince 5(4), Störmer–Verlet,
+//!   Yoshida 4, implicit midpoint), located events, the per-ray loop.
+//! - [`tasks`]: what a scene asks for (deflection lists, observer angle
+//!   scans, GRIN ray lists), fanned out over rays.
+
+pub mod grin;
+pub mod hamiltonian;
+pub mod integrate;
+pub mod metric;
+pub mod tasks;

@@ -63,10 +63,10 @@ use crate::rays::{f_ray, RayGen, Rays};
 use crate::real::Real;
 use crate::rng::rand_f64;
 
-use super::field::{ColorField, Field, FieldDesc, Grid, Oob};
+use super::field::{ColorField, Field, FieldDesc, Grid, Medium, Oob};
 use super::integrate::{f_int, Integrated, RayAcc};
 use super::occupancy::Occupancy;
-use super::sample::{f_samp, walk_lattice, March, Samples, Sampling};
+use super::sample::{f_samp, walk_lattice, March, Samples, Sampling, TransPath};
 use super::{Chain, VolumeParams};
 
 /// How grid gradients are reduced into nodes (see the module doc).
@@ -442,6 +442,8 @@ impl<F: Real> Pose<F> {
 
 /// Everything fixed for one backward pass.
 struct Ctx<'a, F> {
+    /// The forward's own field query (so the re-walk repeats it bit for bit).
+    medium: &'a Medium<F>,
     field: &'a Field<F>,
     color: &'a ColorField<F>,
     m: &'a March<F>,
@@ -470,12 +472,14 @@ fn replay_fused<F: Real>(cx: &Ctx<F>, r: usize, recs: &mut Vec<Rec<F>>) -> F {
         cx.m,
         cx.occ,
         |k, t, h, x| {
-            let tk = acc.transmittance(cx.m.path);
+            let tk = match cx.m.path {
+                TransPath::Product => acc.transmittance::<false>(),
+                TransPath::Log => acc.transmittance::<true>(),
+            };
             if tk < cx.m.early_stop {
                 return false;
             }
-            let sigma = cx.field.sigma(x);
-            let c = cx.color.color(x);
+            let (sigma, c) = cx.medium.query(x);
             let log_t = acc.log_t;
             let alpha = acc.step(tk, sigma, c, t, h);
             recs.push(Rec {
@@ -1024,11 +1028,10 @@ pub fn forward_buffers<F: Real>(
     budget: &MemBudget,
 ) -> Result<Forward<F>> {
     let m = params.march::<F>();
-    let field = params.field.to_real::<F>();
-    let color = params.color.to_real::<F>();
+    let medium = Medium::<F>::new(&params.field, &params.color);
     let occ = occupancy::<F>(params, gen, budget)?;
     let rays = f_ray::<F>(cam, gen, budget)?;
-    let samples = f_samp(&rays, &field, &color, &m, occ.as_ref(), budget)?;
+    let samples = f_samp(&rays, &medium, &m, occ.as_ref(), budget)?;
     budget.check(
         "f_int buffers",
         bytes_for(samples.len() as u64, Integrated::<F>::BYTES_PER_SAMPLE),
@@ -1109,7 +1112,9 @@ pub fn f_diff<F: Real>(
             ));
         }
     }
+    let medium = Medium::<F>::new(&params.field, &params.color);
     let cx = Ctx {
+        medium: &medium,
         field: &field,
         color: &color,
         m: &m,
@@ -1135,7 +1140,6 @@ pub fn has_grid_density(f: &FieldDesc) -> bool {
 mod tests {
     use super::*;
     use crate::volume::field::{Analytic, ColorDesc, GridDesc};
-    use crate::volume::sample::TransPath;
 
     fn params(field: FieldDesc, color: ColorDesc, es: f64) -> VolumeParams {
         VolumeParams {

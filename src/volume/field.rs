@@ -538,70 +538,129 @@ impl<F: Real> Grid<F> {
     }
 
     /// Trilinear interpolation of channels `0..C` at world point `x`.
-    /// Weights: `fx = u - floor(u)` per axis; lerp along x, then y, then z
-    /// (this order is part of the CPU/GPU contract).
-    #[inline]
+    /// Index coordinate `u = (x - min) * scale`; corner `i0 = floor(u)`,
+    /// weight `f = u - i0` per axis; lerp along x, then y, then z (this order
+    /// is part of the CPU/GPU contract). `floor` is done by truncation
+    /// ([`floor_i64`]): no libm call in the hot loop.
+    #[inline(always)]
     pub fn trilinear<const C: usize>(&self, x: [F; 3]) -> [F; C] {
         let n = [self.nx, self.ny, self.nz];
-        let mut u = [F::zero(); 3];
-        for a in 0..3 {
-            u[a] = (x[a] - self.bmin[a]) * self.scale[a];
-        }
         let mut i0 = [0usize; 3];
         let mut f = [F::zero(); 3];
         let mut inside = true;
-        match self.oob {
-            Oob::Clamp => {
-                for a in 0..3 {
-                    let top = F::of((n[a] - 1) as f64);
-                    let c = u[a].max(F::zero()).min(top);
-                    let fl = c.floor().min(F::of((n[a] - 2) as f64));
-                    i0[a] = fl.to_usize().unwrap_or(0);
-                    f[a] = c - fl;
+        for a in 0..3 {
+            let u = (x[a] - self.bmin[a]) * self.scale[a];
+            let top = (n[a] - 1) as i64;
+            match self.oob {
+                Oob::Clamp => {
+                    let c = fmin(fmax(u, F::zero()), F::of(top as f64));
+                    let (mut fl, mut ff) = floor_i64(c);
+                    if fl > top - 1 {
+                        (fl, ff) = (top - 1, F::of((top - 1) as f64));
+                    }
+                    i0[a] = fl as usize;
+                    f[a] = c - ff;
                 }
-            }
-            Oob::Zero => {
-                for a in 0..3 {
-                    let fl = u[a].floor();
+                Oob::Zero => {
+                    let (fl, ff) = floor_i64(u);
                     // All eight corners outside: the value is exactly 0.
-                    if fl < -F::one() || fl > F::of((n[a] - 1) as f64) {
+                    if fl < -1 || fl > top {
                         return [F::zero(); C];
                     }
-                    f[a] = u[a] - fl;
-                    if fl < F::zero() || fl > F::of((n[a] - 2) as f64) {
+                    if fl < 0 || fl >= top {
                         inside = false;
                     }
-                    // -1 maps to usize::MAX via the i64 cast; handled by `corner`.
-                    i0[a] = (fl.to_i64().unwrap_or(-1)) as usize;
+                    f[a] = u - ff;
+                    // -1 wraps to usize::MAX; `corner` maps it back with wrapping_add.
+                    i0[a] = fl as usize;
                 }
             }
         }
-        let (sx, sy) = (self.ch, self.ch * self.nx);
+        // Callers always ask for all channels (C == ch): strides are constants.
+        debug_assert_eq!(self.ch, C);
+        let (sx, sy) = (C, C * self.nx);
         let sz = sy * self.ny;
+        let one = F::one();
+        let g = [one - f[0], f[0], one - f[1], f[1], one - f[2], f[2]];
+        let mut out = [F::zero(); C];
+        if inside {
+            // The x-neighbours of a corner are adjacent: four rows of 2C values.
+            let b = i0[2] * sz + i0[1] * sy + i0[0] * sx;
+            let d = &self.data;
+            let r00 = &d[b..b + 2 * C];
+            let r10 = &d[b + sy..b + sy + 2 * C];
+            let r01 = &d[b + sz..b + sz + 2 * C];
+            let r11 = &d[b + sz + sy..b + sz + sy + 2 * C];
+            for (c, o) in out.iter_mut().enumerate() {
+                let c00 = r00[c] * g[0] + r00[C + c] * g[1];
+                let c10 = r10[c] * g[0] + r10[C + c] * g[1];
+                let c01 = r01[c] * g[0] + r01[C + c] * g[1];
+                let c11 = r11[c] * g[0] + r11[C + c] * g[1];
+                let c0 = c00 * g[2] + c10 * g[3];
+                let c1 = c01 * g[2] + c11 * g[3];
+                *o = c0 * g[4] + c1 * g[5];
+            }
+            return out;
+        }
         let corner = |di: usize, dj: usize, dk: usize, c: usize| -> F {
             let (i, j, k) = (
                 i0[0].wrapping_add(di),
                 i0[1].wrapping_add(dj),
                 i0[2].wrapping_add(dk),
             );
-            if inside || (i < self.nx && j < self.ny && k < self.nz) {
+            if i < self.nx && j < self.ny && k < self.nz {
                 self.data[k * sz + j * sy + i * sx + c]
             } else {
                 F::zero()
             }
         };
-        let one = F::one();
-        let mut out = [F::zero(); C];
         for (c, o) in out.iter_mut().enumerate() {
-            let c00 = corner(0, 0, 0, c) * (one - f[0]) + corner(1, 0, 0, c) * f[0];
-            let c10 = corner(0, 1, 0, c) * (one - f[0]) + corner(1, 1, 0, c) * f[0];
-            let c01 = corner(0, 0, 1, c) * (one - f[0]) + corner(1, 0, 1, c) * f[0];
-            let c11 = corner(0, 1, 1, c) * (one - f[0]) + corner(1, 1, 1, c) * f[0];
-            let c0 = c00 * (one - f[1]) + c10 * f[1];
-            let c1 = c01 * (one - f[1]) + c11 * f[1];
-            *o = c0 * (one - f[2]) + c1 * f[2];
+            let c00 = corner(0, 0, 0, c) * g[0] + corner(1, 0, 0, c) * g[1];
+            let c10 = corner(0, 1, 0, c) * g[0] + corner(1, 1, 0, c) * g[1];
+            let c01 = corner(0, 0, 1, c) * g[0] + corner(1, 0, 1, c) * g[1];
+            let c11 = corner(0, 1, 1, c) * g[0] + corner(1, 1, 1, c) * g[1];
+            let c0 = c00 * g[2] + c10 * g[3];
+            let c1 = c01 * g[2] + c11 * g[3];
+            *o = c0 * g[4] + c1 * g[5];
         }
         out
+    }
+}
+
+/// `floor(x)` as an integer and as a float, by truncation and a correction
+/// (no libm call: x86-64 without SSE4.1 has no floor instruction). Values
+/// beyond +-4.6e18 saturate there, which callers treat as outside.
+#[inline(always)]
+pub fn floor_i64<F: Real>(x: F) -> (i64, F) {
+    let lim = F::of(4.6e18);
+    let x = fmin(fmax(x, -lim), lim);
+    let t = x.to_i64().unwrap_or(0);
+    let tf = F::of(t as f64);
+    if tf > x {
+        (t - 1, tf - F::one())
+    } else {
+        (t, tf)
+    }
+}
+
+/// `min` for operands known not to be NaN: one compare-select (the
+/// NaN-aware `f32::min` costs four more instructions in the hot loop).
+#[inline(always)]
+pub fn fmin<F: Real>(a: F, b: F) -> F {
+    if a < b {
+        a
+    } else {
+        b
+    }
+}
+
+/// `max` for operands known not to be NaN (see [`fmin`]).
+#[inline(always)]
+pub fn fmax<F: Real>(a: F, b: F) -> F {
+    if a > b {
+        a
+    } else {
+        b
     }
 }
 
@@ -672,7 +731,7 @@ impl<F: Real> Field<F> {
                 }
             }
             Field::Linear { a, g } => (*a + g[0] * x[0] + g[1] * x[1] + g[2] * x[2]).max(F::zero()),
-            Field::Grid(g) => g.trilinear::<1>(x)[0].max(F::zero()),
+            Field::Grid(g) => fmax(g.trilinear::<1>(x)[0], F::zero()),
         }
     }
 }
@@ -690,6 +749,64 @@ impl<F: Real> ColorField<F> {
         match self {
             ColorField::Constant(c) => *c,
             ColorField::Grid(g) => g.trilinear::<3>(x),
+        }
+    }
+}
+
+/// What a sample queries: density and colour together. When both are
+/// dense grids on the same nodes (shape, box, OOB policy), they are packed
+/// into one 4-channel grid `[sigma, r, g, b]` per node, so one set of eight
+/// corner loads (16 contiguous bytes each in f32) serves both; each channel
+/// is interpolated with the same operations as the split grids, so the
+/// values are bit-identical to the split query.
+#[derive(Clone, Debug)]
+pub enum Medium<F> {
+    Split {
+        sigma: Field<F>,
+        color: ColorField<F>,
+    },
+    Packed(Grid<F>),
+}
+
+impl<F: Real> Medium<F> {
+    /// The medium of `field` and `color` in precision `F`.
+    pub fn new(field: &FieldDesc, color: &ColorDesc) -> Medium<F> {
+        if let (FieldDesc::Grid(d), ColorDesc::Grid(c)) = (field, color) {
+            if d.shape == c.shape
+                && d.bmin == c.bmin
+                && d.bmax == c.bmax
+                && d.oob == c.oob
+                && d.ch == 1
+                && c.ch == 3
+            {
+                let n = d.data.len();
+                let mut data = Vec::with_capacity(4 * n);
+                for i in 0..n {
+                    data.push(d.data[i]);
+                    data.extend_from_slice(&c.data[3 * i..3 * i + 3]);
+                }
+                return Medium::Packed(Grid::from_desc(&GridDesc {
+                    ch: 4,
+                    data,
+                    ..d.clone()
+                }));
+            }
+        }
+        Medium::Split {
+            sigma: field.to_real(),
+            color: color.to_real(),
+        }
+    }
+
+    /// `(sigma, colour)` at `x`.
+    #[inline(always)]
+    pub fn query(&self, x: [F; 3]) -> (F, [F; 3]) {
+        match self {
+            Medium::Split { sigma, color } => (sigma.sigma(x), color.color(x)),
+            Medium::Packed(g) => {
+                let v = g.trilinear::<4>(x);
+                (fmax(v[0], F::zero()), [v[1], v[2], v[3]])
+            }
         }
     }
 }
@@ -733,6 +850,25 @@ mod tests {
         assert_eq!(z.trilinear::<1>([-2.5, 0.0, 0.0])[0], 0.0);
         assert_eq!(c.trilinear::<1>([1.5, 0.0, 0.0])[0], 2.0);
         assert_eq!(c.trilinear::<1>([-7.0, 9.0, 0.3])[0], 2.0);
+    }
+
+    #[test]
+    fn packed_grids_query_the_same_bits_as_split_grids() {
+        let d = GridDesc::sample([5, 6, 7], B0, B1, Oob::Zero, |x| 3.0 + x[0] * x[1] - x[2]);
+        let mut c = GridDesc::sample([5, 6, 7], B0, B1, Oob::Zero, |x| x[2]);
+        c.data = c.data.iter().flat_map(|&v| [v, 2.0 * v, v * v]).collect();
+        c.ch = 3;
+        let (fd, cd) = (FieldDesc::Grid(d), ColorDesc::Grid(c));
+        let packed = Medium::<f32>::new(&fd, &cd);
+        assert!(matches!(packed, Medium::Packed(_)));
+        let split = Medium::<f32>::Split {
+            sigma: fd.to_real(),
+            color: cd.to_real(),
+        };
+        for i in 0..2000u32 {
+            let x = [0, 1, 2].map(|k| crate::rng::rand_f32(5, i, 0, k) * 2.4 - 1.2);
+            assert_eq!(packed.query(x), split.query(x), "{x:?}");
+        }
     }
 
     #[test]

@@ -18,10 +18,10 @@ use crate::rays::{clip_aabb, RayGen};
 use crate::real::Real;
 use crate::rng::rand_f64;
 
-use super::field::{ColorField, Field};
+use super::field::Medium;
 use super::integrate::{RayAcc, RayOut};
 use super::occupancy::Occupancy;
-use super::sample::{walk_lattice, March};
+use super::sample::{walk_lattice, March, TransPath};
 
 /// The per-ray loop: returns the ray's result and the lattice points the
 /// occupancy bitfield skipped.
@@ -33,23 +33,39 @@ pub fn march_ray<F: Real>(
     t0: F,
     t1: F,
     pixel: u32,
-    field: &Field<F>,
-    color: &ColorField<F>,
+    medium: &Medium<F>,
+    m: &March<F>,
+    occ: Option<&Occupancy<F>>,
+) -> (RayOut<F>, u64) {
+    match m.path {
+        TransPath::Product => march_ray_path::<F, false>(o, d, t0, t1, pixel, medium, m, occ),
+        TransPath::Log => march_ray_path::<F, true>(o, d, t0, t1, pixel, medium, m, occ),
+    }
+}
+
+#[inline]
+#[allow(clippy::too_many_arguments)]
+fn march_ray_path<F: Real, const LOG: bool>(
+    o: [F; 3],
+    d: [F; 3],
+    t0: F,
+    t1: F,
+    pixel: u32,
+    medium: &Medium<F>,
     m: &March<F>,
     occ: Option<&Occupancy<F>>,
 ) -> (RayOut<F>, u64) {
     let mut acc = RayAcc::default();
     let (flags, skipped) = walk_lattice(o, d, t0, t1, pixel, m, occ, |_, t, h, x| {
-        let tk = acc.transmittance(m.path);
+        let tk = acc.transmittance::<LOG>();
         if tk < m.early_stop {
             return false;
         }
-        let sigma = field.sigma(x);
-        let c = color.color(x);
+        let (sigma, c) = medium.query(x);
         acc.step(tk, sigma, c, t, h);
         true
     });
-    (acc.finish(m.path, m.background, flags), skipped)
+    (acc.finish::<LOG>(m.background, flags), skipped)
 }
 
 /// Tile side in pixels.
@@ -97,8 +113,7 @@ fn camera_ray<F: Real>(
 pub fn f_fused<F: Real>(
     cam: &Camera,
     gen: &RayGen,
-    field: &Field<F>,
-    color: &ColorField<F>,
+    medium: &Medium<F>,
     m: &March<F>,
     occ: Option<&Occupancy<F>>,
     budget: &MemBudget,
@@ -123,13 +138,13 @@ pub fn f_fused<F: Real>(
                 }
                 let (o, d, t0, t1, pixel) =
                     camera_ray(&rc, gen, roi.x + ru, roi.y + rv, bmin, bmax);
-                let (r, s) = march_ray(o, d, t0, t1, pixel, field, color, m, occ);
+                let (r, s) = march_ray(o, d, t0, t1, pixel, medium, m, occ);
                 out.push(((rv * roi.width + ru) as usize, r, s, pixel));
             }
         }
         out
     });
-    let blank = RayAcc::default().finish(m.path, m.background, 0);
+    let blank = RayAcc::default().finish::<false>(m.background, 0);
     let mut f = Fused {
         rays: vec![blank; n as usize],
         pixel: vec![0; n as usize],

@@ -16,6 +16,7 @@ pub mod compose;
 pub mod diff;
 pub mod field;
 pub mod fused;
+pub mod gpu;
 pub mod integrate;
 pub mod occupancy;
 pub mod sample;
@@ -140,6 +141,35 @@ pub struct Render<F> {
     pub integrated: Option<Integrated<F>>,
 }
 
+/// A render plan's fields and parameters in precision `F`, built once
+/// (grid conversion, colour packing, occupancy bits) and reused by every
+/// frame that renders it.
+#[derive(Clone, Debug)]
+pub struct Prepared<F> {
+    pub medium: field::Medium<F>,
+    pub occ: Option<Occupancy<F>>,
+    pub march: March<F>,
+}
+
+/// Builds the [`Prepared`] plan of `params` for the world box `aabb`.
+pub fn prepare<F: Real>(
+    params: &VolumeParams,
+    aabb: &crate::rays::Aabb,
+    budget: &MemBudget,
+) -> Result<Prepared<F>> {
+    let march = params.march::<F>();
+    march.validate()?;
+    let occ = match params.occupancy {
+        0 => None,
+        r => Some(Occupancy::<F>::build(&params.field, aabb, r, budget)?),
+    };
+    Ok(Prepared {
+        medium: field::Medium::<F>::new(&params.field, &params.color),
+        occ,
+        march,
+    })
+}
+
 /// Renders `params` through `cam` / `gen` with the fused or unfused chain.
 pub fn render<F: Real>(
     cam: &Camera,
@@ -150,21 +180,31 @@ pub fn render<F: Real>(
     budget: &MemBudget,
 ) -> Result<Render<F>> {
     let t_all = Instant::now();
-    let m = params.march::<F>();
-    m.validate()?;
-    let field = params.field.to_real::<F>();
-    let color = params.color.to_real::<F>();
-    let occ = match params.occupancy {
-        0 => None,
-        r => Some(Occupancy::<F>::build(&params.field, &gen.aabb, r, budget)?),
-    };
+    let prep = prepare::<F>(params, &gen.aabb, budget)?;
+    let mut r = render_prepared(cam, gen, &prep, chain, compose, budget)?;
+    r.timings.total = t_all.elapsed().as_secs_f64();
+    Ok(r)
+}
+
+/// Renders a [`Prepared`] plan (one frame).
+pub fn render_prepared<F: Real>(
+    cam: &Camera,
+    gen: &RayGen,
+    prep: &Prepared<F>,
+    chain: Chain,
+    compose: Compose,
+    budget: &MemBudget,
+) -> Result<Render<F>> {
+    let t_all = Instant::now();
+    let m = prep.march;
+    let occ = prep.occ.as_ref();
     let roi = gen.region();
     let region = (roi.x, roi.y, roi.width, roi.height);
     let mut tm = Timings::default();
     let (rays_out, pixel, skipped, samples, integrated) = match chain {
         Chain::Fused => {
             let t = Instant::now();
-            let f = fused::f_fused(cam, gen, &field, &color, &m, occ.as_ref(), budget)?;
+            let f = fused::f_fused(cam, gen, &prep.medium, &m, occ, budget)?;
             tm.fused = t.elapsed().as_secs_f64();
             (f.rays, f.pixel, f.skipped, None, None)
         }
@@ -173,7 +213,7 @@ pub fn render<F: Real>(
             let rays = f_ray::<F>(cam, gen, budget)?;
             tm.ray = t.elapsed().as_secs_f64();
             let t = Instant::now();
-            let s = f_samp(&rays, &field, &color, &m, occ.as_ref(), budget)?;
+            let s = f_samp(&rays, &prep.medium, &m, occ, budget)?;
             tm.samp = t.elapsed().as_secs_f64();
             budget.check(
                 "f_int buffers",

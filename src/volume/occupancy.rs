@@ -13,7 +13,7 @@ use crate::error::{Error, Result};
 use crate::rays::Aabb;
 use crate::real::Real;
 
-use super::field::FieldDesc;
+use super::field::{fmax, fmin, FieldDesc};
 
 /// Bits of occupied cells, x fastest: cell (k, j, i) is bit `(k res + j) res + i`.
 #[derive(Clone, Debug, PartialEq)]
@@ -87,10 +87,11 @@ impl<F: Real> Occupancy<F> {
         let top = F::of((self.res - 1) as f64);
         let mut c = [0u32; 3];
         for a in 0..3 {
-            let u = ((x[a] - self.bmin[a]) * self.inv_cell[a])
-                .floor()
-                .max(F::zero())
-                .min(top);
+            // Clamped to [0, res - 1] first, so truncation is floor.
+            let u = fmin(
+                fmax((x[a] - self.bmin[a]) * self.inv_cell[a], F::zero()),
+                top,
+            );
             c[a] = u.to_u32().unwrap_or(0);
         }
         let b = ((c[2] * self.res + c[1]) * self.res + c[0]) as usize;

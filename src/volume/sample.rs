@@ -20,7 +20,7 @@ use crate::rays::Rays;
 use crate::real::Real;
 use crate::rng::rand_f64;
 
-use super::field::{ColorField, Field};
+use super::field::{fmin, Medium};
 use super::occupancy::Occupancy;
 
 /// Largest `max_steps`: keeps `k` exact as an f32.
@@ -96,7 +96,7 @@ pub fn sample_k<F: Real>(
     pixel: u32,
 ) -> Option<(F, F)> {
     let a = t0 + F::of(k as f64) * dt;
-    let b = (t0 + F::of((k + 1) as f64) * dt).min(t1);
+    let b = fmin(t0 + F::of((k + 1) as f64) * dt, t1);
     if !(a < t1 && b > a) {
         return None;
     }
@@ -171,10 +171,21 @@ pub fn walk_lattice<F: Real>(
     }
     let mut skipped = 0;
     let mut flags = FLAG_HIT;
+    // Inline [`sample_k`], with `t0 + (k + 1) dt` computed once and reused as
+    // the next `a`: the same expressions, so the same bits.
+    let mut a = t0;
     for k in 0..m.max_steps {
-        let Some((t, h)) = sample_k(t0, t1, m.dt, k, m.sampling, pixel) else {
+        let a_next = t0 + F::of((k + 1) as f64) * m.dt;
+        let b = fmin(a_next, t1);
+        if !(a < t1 && b > a) {
             return (flags, skipped);
+        }
+        let h = b - a;
+        let t = match m.sampling {
+            Sampling::Fixed => (a + b) * F::of(0.5),
+            Sampling::Stratified { seed } => a + F::of(rand_f64(seed, pixel, 0, k)) * h,
         };
+        a = a_next;
         let x = sample_pos(o, d, t);
         if occ.is_some_and(|o| !o.occupied(x)) {
             skipped += 1;
@@ -208,8 +219,7 @@ struct SampTile<'a, F> {
 /// memory budget before the per-sample allocation.
 pub fn f_samp<F: Real>(
     rays: &Rays<F>,
-    field: &Field<F>,
-    color: &ColorField<F>,
+    medium: &Medium<F>,
     m: &March<F>,
     occ: Option<&Occupancy<F>>,
     budget: &MemBudget,
@@ -312,8 +322,7 @@ pub fn f_samp<F: Real>(
                     tile.ray_id[j] = r as u32;
                     tile.t[j] = t;
                     tile.dt[j] = h;
-                    tile.sigma[j] = field.sigma(x);
-                    tile.color[j] = color.color(x);
+                    (tile.sigma[j], tile.color[j]) = medium.query(x);
                     j += 1;
                     true
                 },
@@ -359,6 +368,45 @@ mod tests {
         assert_eq!(got.len(), 4);
         assert!((got[3].1 - 0.95).abs() < 1e-15 && (got[3].2 - 0.1).abs() < 1e-15);
         assert_eq!(got[1].1, (0.3 + 0.6) * 0.5);
+    }
+
+    #[test]
+    fn walk_lattice_visits_exactly_the_sample_k_lattice_in_f32() {
+        for i in 0..200u32 {
+            let r = |d| crate::rng::rand_f32(4, i, 0, d);
+            let (t0, len, dt) = (r(0) * 3.0, r(1) * 2.0, 0.001 + r(2) * 0.05);
+            let sampling = if i % 2 == 0 {
+                Sampling::Fixed
+            } else {
+                Sampling::Stratified { seed: i }
+            };
+            let m = March {
+                dt,
+                max_steps: 1024,
+                early_stop: 0.0,
+                sampling,
+                path: TransPath::Product,
+                background: [0.0; 3],
+            };
+            let mut got = vec![];
+            walk_lattice(
+                [0.0f32; 3],
+                [1.0, 0.0, 0.0],
+                t0,
+                t0 + len,
+                i,
+                &m,
+                None,
+                |k, t, h, _| {
+                    got.push((k, t, h));
+                    true
+                },
+            );
+            let want: Vec<(u32, f32, f32)> = (0..1024)
+                .map_while(|k| sample_k(t0, t0 + len, dt, k, sampling, i).map(|(t, h)| (k, t, h)))
+                .collect();
+            assert_eq!(got, want);
+        }
     }
 
     #[test]
@@ -416,12 +464,13 @@ mod tests {
             t1: vec![1.0, 0.5, 0.25],
             pixel: vec![0, 1, 2],
         };
-        let field = FieldDesc::Analytic(Analytic::Constant { s: 2.0 }).to_real::<f64>();
-        let color = ColorDesc::Constant([1.0, 0.5, 0.25]).to_real::<f64>();
+        let medium = Medium::new(
+            &FieldDesc::Analytic(Analytic::Constant { s: 2.0 }),
+            &ColorDesc::Constant([1.0, 0.5, 0.25]),
+        );
         let s = f_samp(
             &rays,
-            &field,
-            &color,
+            &medium,
             &march(0.1, 100),
             None,
             &MemBudget::fixed(1 << 20),

@@ -8,13 +8,14 @@
 //! | `rays.clip_list_reference` | the f64 closed form for the listed rays |
 //! | `rays.jitter_offsets` | the jittered pixel offsets of every pixel (for KS tests) |
 //! | `rays.rng_table` | `rand_u32` / `rand_f32` over a grid of keys |
+//! | `rays.expm1_table` | `expm1` of `params.xs` (f32 on cpu and gpu, f64 on cpu f64): the alpha kernel |
 //! | `const` | tensors written out in `params.tensors` (hand-made expectations) |
 
 use std::time::Instant;
 
 use serde::Deserialize;
 
-use super::{OpCtx, OpEntry};
+use super::{BackendKind, OpCtx, OpEntry};
 use crate::camera::Camera;
 use crate::error::{Error, Result};
 use crate::rays::{clip_aabb, f_ray, Aabb, RayGen, Rays};
@@ -64,6 +65,12 @@ pub const OPS: &[OpEntry] = &[
         doc: "rand_u32 and rand_f32 for seeds x pixels x samples x dims in params",
         params: &["seeds", "pixels", "samples", "dims"],
         run: rng_table,
+    },
+    OpEntry {
+        name: "rays.expm1_table",
+        doc: "expm1(x) for x in params.xs: CPU f32/f64 libm, GPU common.wgsl expm1_f32",
+        params: &["xs"],
+        run: expm1_table,
     },
     OpEntry {
         name: "const",
@@ -131,9 +138,33 @@ fn generate_in<F: Real>(ctx: &OpCtx, out: &mut Outputs) -> Result<()> {
     rays_outputs(&r, &shape, out)
 }
 
+/// The GPU context for a `gpu` run; the GPU computes in f32 only.
+fn gpu_f32(ctx: &OpCtx) -> Result<&'static crate::gpu::GpuContext> {
+    if ctx.precision != Precision::F32 {
+        return Err(Error::NotSupported(format!(
+            "{}: the GPU computes in f32 only",
+            ctx.case_id
+        )));
+    }
+    crate::gpu::GpuContext::get()
+}
+
 fn generate(ctx: &OpCtx) -> Result<Outputs> {
-    ctx.cpu_only()?;
     let mut out = Outputs::default();
+    if ctx.backend == BackendKind::Gpu {
+        if ctx.rays.is_some() {
+            return Err(Error::NotSupported(format!(
+                "{}: replaying --rays runs on the CPU only",
+                ctx.case_id
+            )));
+        }
+        let (cam, gen) = view(ctx)?;
+        let (r, s) = crate::gpu::rays::f_ray(gpu_f32(ctx)?, &cam, &gen, &ctx.budget)?;
+        out.metric("time_s", s)
+            .metric("mrays_per_s", r.len() as f64 / s / 1e6);
+        rays_outputs(&r, &image_shape(&gen), &mut out)?;
+        return Ok(out);
+    }
     match ctx.precision {
         Precision::F32 => generate_in::<f32>(ctx, &mut out)?,
         Precision::F64 => generate_in::<f64>(ctx, &mut out)?,
@@ -349,26 +380,85 @@ fn jitter_offsets(ctx: &OpCtx) -> Result<Outputs> {
 }
 
 fn rng_table(ctx: &OpCtx) -> Result<Outputs> {
-    ctx.cpu_only()?;
     let seeds: Vec<u32> = ctx.param_req("seeds")?;
     let pixels: Vec<u32> = ctx.param_req("pixels")?;
     let samples: Vec<u32> = ctx.param_req("samples")?;
     let dims: Vec<u32> = ctx.param_req("dims")?;
     let shape = [seeds.len(), pixels.len(), samples.len(), dims.len()];
-    let (mut words, mut floats) = (vec![], vec![]);
+    let mut keys = vec![];
     for &s in &seeds {
         for &p in &pixels {
             for &k in &samples {
                 for &d in &dims {
-                    words.push(rand_u32(s, p, k, d));
-                    floats.push(rand_f32(s, p, k, d));
+                    keys.push([s, p, k, d]);
                 }
             }
         }
     }
+    let (words, floats) = match ctx.backend {
+        BackendKind::Gpu => crate::gpu::math::rng_table(gpu_f32(ctx)?, &keys)?,
+        BackendKind::Cpu => keys
+            .iter()
+            .map(|k| {
+                (
+                    rand_u32(k[0], k[1], k[2], k[3]),
+                    rand_f32(k[0], k[1], k[2], k[3]),
+                )
+            })
+            .unzip(),
+    };
     let mut out = Outputs::default();
     out.tensor("words", Tensor::from_shape_vec(&shape, words)?);
     out.tensor("floats", Tensor::from_shape_vec(&shape, floats)?);
+    Ok(out)
+}
+
+/// `expm1(x)` for every x of `params.xs` (finite numbers): on the CPU in
+/// the case's precision (libm), on the GPU by `common.wgsl` `expm1_f32`.
+/// Output `y`, same length.
+fn expm1_table(ctx: &OpCtx) -> Result<Outputs> {
+    let xs: Vec<f64> = ctx.param_req("xs")?;
+    if xs.iter().any(|x| !x.is_finite()) {
+        return Err(Error::invalid(
+            format!("{} params.xs", ctx.case_id),
+            "every x must be finite",
+        ));
+    }
+    let n = [xs.len()];
+    let mut out = Outputs::default();
+    match (ctx.backend, ctx.precision) {
+        (BackendKind::Gpu, _) => {
+            let x32: Vec<f32> = xs.iter().map(|&x| x as f32).collect();
+            out.tensor(
+                "y",
+                Tensor::real(&n, crate::gpu::math::expm1_table(gpu_f32(ctx)?, &x32)?)?,
+            );
+        }
+        (BackendKind::Cpu, Precision::F32) => {
+            out.tensor(
+                "y",
+                Tensor::real(
+                    &n,
+                    xs.iter()
+                        .map(|&x| (x as f32).exp_m1())
+                        .collect::<Vec<f32>>(),
+                )?,
+            );
+        }
+        (BackendKind::Cpu, Precision::F64) => {
+            // The f64 referee evaluates at the f32-rounded argument, so the
+            // comparison measures expm1's error, not the argument's rounding.
+            out.tensor(
+                "y",
+                Tensor::real(
+                    &n,
+                    xs.iter()
+                        .map(|&x| (x as f32 as f64).exp_m1())
+                        .collect::<Vec<f64>>(),
+                )?,
+            );
+        }
+    }
     Ok(out)
 }
 

@@ -8,6 +8,7 @@
 //! | `volume.samples` | f_samp outputs: off, ray_id, t, dt, sigma, u (stratified offsets), m |
 //! | `volume.reference_quadrature` | the discrete midpoint/stratified quadrature, f64, written here independently |
 //! | `volume.closed_form` | continuum transmittance of the analytic field (constant, slabs, gaussian via erf, shell chord, linear) |
+//! | `volume.grid_probe` / `_reference` | a density grid at seeded points in and out of the box, ours vs an independent trilinear (OOB zero / clamp) |
 //! | `volume.perf` | fused vs unfused: samples/s, integrated_samples/s, pixels/s, fused_speedup |
 //! | `volume.dt_sweep` | seconds and max error vs the closed form for each dt in `params.dts`, f32 and f64 |
 //!
@@ -18,7 +19,9 @@ use std::time::Instant;
 
 use statrs::function::erf::erf;
 
-use super::{OpCtx, OpEntry};
+mod gpu;
+
+use super::{BackendKind, OpCtx, OpEntry};
 use crate::camera::Camera;
 use crate::error::{Error, Result};
 use crate::rays::{f_ray, RayGen};
@@ -29,7 +32,7 @@ use crate::tensor::{Outputs, Tensor};
 use crate::volume::compose::{Compose, Image};
 use crate::volume::field::{Analytic, ColorDesc, FieldDesc, GridDesc, Oob};
 use crate::volume::sample::{Sampling, TransPath};
-use crate::volume::{render, Chain, Render, VolumeParams};
+use crate::volume::{prepare, render, render_prepared, Chain, Render, VolumeParams};
 
 const RENDER_PARAMS: &[&str] = &["compose"];
 
@@ -69,6 +72,18 @@ pub const OPS: &[OpEntry] = &[
         doc: "continuum closed forms of trans, logtrans, opacity, rgb for analytic fields (and grids sampled from them)",
         params: &[],
         run: op_closed_form,
+    },
+    OpEntry {
+        name: "volume.grid_probe",
+        doc: "the scene's density grid at params.n seeded points in [-1.5, 1.5]^3 (in and out of the box): value",
+        params: &["n", "seed"],
+        run: op_grid_probe,
+    },
+    OpEntry {
+        name: "volume.grid_probe_reference",
+        doc: "the same points through the independent f64 trilinear reference: value, inside",
+        params: &["n", "seed"],
+        run: op_grid_probe_reference,
     },
     OpEntry {
         name: "volume.perf",
@@ -158,7 +173,9 @@ fn run_chain<F: Real>(ctx: &OpCtx, chain: Chain, buffers: bool) -> Result<Output
 }
 
 fn op_forward(ctx: &OpCtx) -> Result<Outputs> {
-    ctx.cpu_only()?;
+    if ctx.backend == BackendKind::Gpu {
+        return gpu::run_chain_gpu(ctx, Chain::Fused, compose_param(ctx)?);
+    }
     match ctx.precision {
         Precision::F32 => run_chain::<f32>(ctx, Chain::Fused, false),
         Precision::F64 => run_chain::<f64>(ctx, Chain::Fused, false),
@@ -174,7 +191,9 @@ fn op_render(ctx: &OpCtx) -> Result<Outputs> {
 }
 
 fn op_unfused(ctx: &OpCtx) -> Result<Outputs> {
-    ctx.cpu_only()?;
+    if ctx.backend == BackendKind::Gpu {
+        return gpu::run_chain_gpu(ctx, Chain::Unfused, compose_param(ctx)?);
+    }
     let buffers = ctx.param_or("buffers", false)?;
     match ctx.precision {
         Precision::F32 => run_chain::<f32>(ctx, Chain::Unfused, buffers),
@@ -388,6 +407,63 @@ fn op_reference(ctx: &OpCtx) -> Result<Outputs> {
     Ok(out)
 }
 
+/// The probe points (f64) and the scene's grid.
+fn probe_setup(ctx: &OpCtx) -> Result<(Vec<[f64; 3]>, GridDesc)> {
+    let (_, _, p, _) = load(ctx)?;
+    let FieldDesc::Grid(g) = p.field else {
+        return Err(Error::invalid(
+            ctx.case_id,
+            "grid_probe needs a scene whose field is a grid",
+        ));
+    };
+    let n: u32 = ctx.param_or("n", 4096)?;
+    let seed: u32 = ctx.param_or("seed", 1)?;
+    if n == 0 || n > 1 << 22 {
+        return Err(Error::invalid(
+            format!("{} params.n", ctx.case_id),
+            "must be in 1..=4194304",
+        ));
+    }
+    let pts = (0..n)
+        .map(|i| [0, 1, 2].map(|d| rand_f64(seed, i, 0, d) * 3.0 - 1.5))
+        .collect();
+    Ok((pts, g))
+}
+
+fn grid_probe_in<F: Real>(pts: &[[f64; 3]], g: &GridDesc) -> Result<Tensor> {
+    let grid = crate::volume::field::Grid::<F>::from_desc(g);
+    let v: Vec<F> = pts
+        .iter()
+        .map(|x| grid.trilinear::<1>(x.map(F::of))[0])
+        .collect();
+    Tensor::real(&[pts.len()], v)
+}
+
+fn op_grid_probe(ctx: &OpCtx) -> Result<Outputs> {
+    ctx.cpu_only()?;
+    let (pts, g) = probe_setup(ctx)?;
+    let mut out = Outputs::default();
+    let t = match ctx.precision {
+        Precision::F32 => grid_probe_in::<f32>(&pts, &g)?,
+        Precision::F64 => grid_probe_in::<f64>(&pts, &g)?,
+    };
+    out.tensor("value", t);
+    Ok(out)
+}
+
+fn op_grid_probe_reference(ctx: &OpCtx) -> Result<Outputs> {
+    let (pts, g) = probe_setup(ctx)?;
+    let v: Vec<f64> = pts.iter().map(|&x| ref_grid(&g, x, 0)).collect();
+    let inside: Vec<u8> = pts
+        .iter()
+        .map(|x| (0..3).all(|a| x[a] >= g.bmin[a] && x[a] <= g.bmax[a]) as u8)
+        .collect();
+    let mut out = Outputs::default();
+    out.tensor("value", Tensor::real(&[pts.len()], v)?);
+    out.tensor("inside", Tensor::from_shape_vec(&[pts.len()], inside)?);
+    Ok(out)
+}
+
 // ---------------------------------------------------------------------------
 // Continuum closed forms.
 
@@ -566,6 +642,17 @@ fn op_closed_form(ctx: &OpCtx) -> Result<Outputs> {
 // ---------------------------------------------------------------------------
 // Performance.
 
+/// CPU seconds (user + system) this process has used, from /proc/self/stat
+/// (10 ms ticks); `None` where that file is missing. On a shared machine the
+/// wall clock counts time other jobs held the cores; CPU time does not.
+fn process_cpu_s() -> Option<f64> {
+    let s = std::fs::read_to_string("/proc/self/stat").ok()?;
+    let rest = &s[s.rfind(')')? + 2..];
+    let f: Vec<&str> = rest.split_whitespace().collect();
+    let ticks: f64 = f.get(11)?.parse::<f64>().ok()? + f.get(12)?.parse::<f64>().ok()?;
+    Some(ticks / 100.0)
+}
+
 fn median(v: &mut [f64]) -> f64 {
     v.sort_by(f64::total_cmp);
     v[v.len() / 2]
@@ -581,11 +668,36 @@ fn perf_in<F: Real>(ctx: &OpCtx) -> Result<Outputs> {
         ));
     }
     let (mut fused, mut unfused, mut int, mut img) = (vec![], vec![], vec![], vec![]);
+    let (mut cpu_fused, mut cpu_unfused) = (0.0, 0.0);
     let mut samples = 0;
     let mut last = None;
+    // The plan (grid conversion, colour packing) is built once, as a
+    // training loop would; each repeat renders one frame with each chain.
+    let prep = prepare::<F>(&p, &gen.aabb, &ctx.budget)?;
     for _ in 0..repeats {
-        let f = render::<F>(&cam, &gen, &p, Chain::Fused, Compose::Sorted, &ctx.budget)?;
-        let u = render::<F>(&cam, &gen, &p, Chain::Unfused, Compose::Sorted, &ctx.budget)?;
+        let c0 = process_cpu_s();
+        let f = render_prepared(
+            &cam,
+            &gen,
+            &prep,
+            Chain::Fused,
+            Compose::Sorted,
+            &ctx.budget,
+        )?;
+        let c1 = process_cpu_s();
+        let u = render_prepared(
+            &cam,
+            &gen,
+            &prep,
+            Chain::Unfused,
+            Compose::Sorted,
+            &ctx.budget,
+        )?;
+        let c2 = process_cpu_s();
+        if let (Some(c0), Some(c1), Some(c2)) = (c0, c1, c2) {
+            cpu_fused += c1 - c0;
+            cpu_unfused += c2 - c1;
+        }
         if f.image != u.image {
             return Err(Error::invalid(
                 ctx.case_id,
@@ -618,6 +730,18 @@ fn perf_in<F: Real>(ctx: &OpCtx) -> Result<Outputs> {
     out.metric("pixels_per_s", pixels / tg.max(1e-12));
     out.metric("fused_speedup", tu / tf);
     out.metric("threads", rayon::current_num_threads() as f64);
+    // Frames per CPU second (ray generation to image): the speed of the code
+    // on a core it has to itself, whatever else the machine runs.
+    if cpu_fused > 0.0 && cpu_unfused > 0.0 {
+        out.metric(
+            "samples_per_cpu_s",
+            (samples * repeats as u64) as f64 / cpu_fused,
+        );
+        out.metric(
+            "unfused_samples_per_cpu_s",
+            (samples * repeats as u64) as f64 / cpu_unfused,
+        );
+    }
     Ok(out)
 }
 
@@ -682,6 +806,7 @@ fn op_dt_sweep(ctx: &OpCtx) -> Result<Outputs> {
     }
     let n = [dts.len()];
     let mut out = Outputs::default();
+    out.tensor("plot_rgb", sweep_plot(&cols)?);
     out.tensor("dt", Tensor::real(&n, dts.clone())?);
     for (name, c) in ["time_f32", "err_f32", "time_f64", "err_f64"]
         .iter()
@@ -693,6 +818,75 @@ fn op_dt_sweep(ctx: &OpCtx) -> Result<Outputs> {
         }
     }
     Ok(out)
+}
+
+/// Speed against error as a 320 x 240 raster (no text, so no fonts): x =
+/// log10 seconds, y = log10 max error, both spanning the data's decades
+/// (grey lines at each decade); f32 points red, f64 blue, joined in dt
+/// order. The judge writes it as `plot_rgb.png`.
+fn sweep_plot(cols: &[Vec<f64>; 4]) -> Result<Tensor> {
+    const W: usize = 320;
+    const H: usize = 240;
+    const PAD: f64 = 16.0;
+    let mut img = vec![[1.0f64; 3]; W * H];
+    let lg = |v: f64| v.max(1e-300).log10();
+    let (xs, ys): (Vec<f64>, Vec<f64>) = (
+        cols[0].iter().chain(&cols[2]).map(|&v| lg(v)).collect(),
+        cols[1].iter().chain(&cols[3]).map(|&v| lg(v)).collect(),
+    );
+    let span = |v: &[f64]| {
+        let lo = v.iter().cloned().fold(f64::INFINITY, f64::min).floor();
+        let hi = v.iter().cloned().fold(f64::NEG_INFINITY, f64::max).ceil();
+        (lo, if hi > lo { hi } else { lo + 1.0 })
+    };
+    let ((x0, x1), (y0, y1)) = (span(&xs), span(&ys));
+    let px = |x: f64| PAD + (x - x0) / (x1 - x0) * (W as f64 - 2.0 * PAD);
+    let py = |y: f64| H as f64 - PAD - (y - y0) / (y1 - y0) * (H as f64 - 2.0 * PAD);
+    let mut put = |x: f64, y: f64, c: [f64; 3]| {
+        let (i, j) = (x.round() as i64, y.round() as i64);
+        if i >= 0 && j >= 0 && (i as usize) < W && (j as usize) < H {
+            img[j as usize * W + i as usize] = c;
+        }
+    };
+    let grey = [0.6; 3];
+    for d in (x0 as i64)..=(x1 as i64) {
+        for j in 0..H {
+            put(px(d as f64), j as f64, grey);
+        }
+    }
+    for d in (y0 as i64)..=(y1 as i64) {
+        for i in 0..W {
+            put(i as f64, py(d as f64), grey);
+        }
+    }
+    for (t, e, c) in [
+        (&cols[0], &cols[1], [0.8, 0.05, 0.05]),
+        (&cols[2], &cols[3], [0.05, 0.1, 0.8]),
+    ] {
+        let pts: Vec<(f64, f64)> = t
+            .iter()
+            .zip(e.iter())
+            .map(|(&a, &b)| (px(lg(a)), py(lg(b))))
+            .collect();
+        for w in pts.windows(2) {
+            for k in 0..=200 {
+                let f = k as f64 / 200.0;
+                put(
+                    w[0].0 + f * (w[1].0 - w[0].0),
+                    w[0].1 + f * (w[1].1 - w[0].1),
+                    c,
+                );
+            }
+        }
+        for &(x, y) in &pts {
+            for dy in -3..=3 {
+                for dx in -3..=3 {
+                    put(x + dx as f64, y + dy as f64, c);
+                }
+            }
+        }
+    }
+    Tensor::real3(&[H, W], &img)
 }
 
 #[cfg(test)]

@@ -1,5 +1,601 @@
+//! Sparse voxel octrees and the Laine–Karras ESVO traversal (seeds 001, 003).
 //! Operations of the `voxels` renderer.
+//!
+//! | op | what |
+//! | --- | --- |
+//! | `voxels.render` | build the octree, cast every ray: hit, t, leaf, normal, image, iters, leaf_key; build and cast metrics |
+//! | `voxels.referee` | the exact f64 DDA over the scene predicate on the same rays, with tie flags |
+//! | `voxels.sphere_bounds` | analytic entry distances of the spheres r -+ half a voxel diagonal (sphere scenes) |
+//! | `voxels.bench` | Mrays/s of octree and referee, coherent and incoherent, build time, bytes per voxel |
+//!
+//! Ray sources (`params.rays`): `camera` (default: the scene's camera, tensors
+//! shaped (H, W)), `hard` (`count` rays of each hard kind, shaped (N,), plus
+//! `kind` (int32)), `incoherent` (`count` rays, origins uniform in the box,
+//! uniform directions); `render --rays FILE` replays dumped rays (shape (N,)),
+//! and `--dump-failing` adds `rays` (N, 9). `seed` defaults to the run seed. Rays are made in
+//! the run's precision; the referee widens the same rays to f64, so it
+//! judges exactly the rays the cast saw.
 
-use super::OpEntry;
+use std::time::Instant;
 
-pub const OPS: &[OpEntry] = &[];
+use super::{OpCtx, OpEntry};
+use crate::budget::bytes_for;
+use crate::error::{Error, Result};
+use crate::parallel::par_collect;
+use crate::rays::{f_ray, RayGen, Rays};
+use crate::real::{Precision, Real};
+use crate::scene::voxels::VoxelScene;
+use crate::tensor::{Outputs, Tensor};
+use crate::voxels::cast::{CastParams, CastReal};
+use crate::voxels::octree::{build, Octree};
+use crate::voxels::raysets::{hard, incoherent, HARD_KINDS};
+use crate::voxels::render::{cast_all, referee_all, shade, VoxelHits};
+use crate::voxels::shape::Shape;
+
+const RAY_PARAMS: &[&str] = &["rays", "count", "seed"];
+
+pub const OPS: &[OpEntry] = &[
+    OpEntry {
+        name: "voxels.render",
+        doc: "ESVO cast of a voxels scene: hit, t, leaf, normal, image, iters; build_s, bytes_per_voxel, mrays_per_s",
+        params: RAY_PARAMS,
+        run: render,
+    },
+    OpEntry {
+        name: "voxels.referee",
+        doc: "exact f64 Amanatides-Woo DDA over the scene predicate: hit, t, leaf, normal, tie, near_tie, untied, clear",
+        params: &["rays", "count", "seed", "near_margin"],
+        run: referee_op,
+    },
+    OpEntry {
+        name: "voxels.sphere_bounds",
+        doc: "entry t of the spheres radius -+ half a voxel diagonal: t_outer, t_inner, meets_outer, meets_inner",
+        params: &["rays", "count", "seed", "slack_rel"],
+        run: sphere_bounds,
+    },
+    OpEntry {
+        name: "voxels.bench",
+        doc: "octree vs referee Mrays/s on coherent (size^2 camera) and incoherent (count) rays; build_s, bytes_per_voxel",
+        params: &["count", "size", "seed", "referee_stride"],
+        run: bench,
+    },
+];
+
+fn load(ctx: &OpCtx) -> Result<VoxelScene> {
+    crate::scene::voxels::parse(ctx.scene()?)
+}
+
+/// A batch of rays in precision `F` and the shape of its per-ray tensors.
+struct Batch<F> {
+    o: Vec<[F; 3]>,
+    d: Vec<[F; 3]>,
+    shape: Vec<usize>,
+    near: f64,
+    far: f64,
+    kind: Option<Vec<i32>>,
+}
+
+fn from64<F: Real>(rays: Vec<([f64; 3], [f64; 3])>) -> (Vec<[F; 3]>, Vec<[F; 3]>) {
+    rays.into_iter()
+        .map(|(o, d)| (o.map(F::of), d.map(F::of)))
+        .unzip()
+}
+
+fn camera_batch<F: Real>(ctx: &OpCtx, sc: &VoxelScene, size: Option<u32>) -> Result<Batch<F>> {
+    let (cam, mut gen): (_, RayGen) = sc.view.build()?;
+    let cam = match size {
+        Some(s) => {
+            gen.width = s;
+            gen.height = s;
+            gen.roi = None;
+            sc.view.camera.build(s, s)?
+        }
+        None => cam,
+    };
+    let r = f_ray::<F>(&cam, &gen, &ctx.budget)?;
+    let roi = gen.region();
+    Ok(Batch {
+        o: r.o,
+        d: r.d,
+        shape: vec![roi.height as usize, roi.width as usize],
+        near: gen.near,
+        far: gen.far,
+        kind: None,
+    })
+}
+
+fn batch<F: Real>(ctx: &OpCtx, sc: &VoxelScene) -> Result<Batch<F>> {
+    let src: String = ctx.param_or("rays", "camera".to_string())?;
+    let seed: u32 = ctx.param_or("seed", ctx.seed)?;
+    let count: u32 = ctx.param_or("count", 4096)?;
+    let at = format!("{} params.rays", ctx.case_id);
+    if let Some(t) = ctx.rays {
+        // `render --rays FILE`: replay dumped rays (their t0/t1 columns are
+        // ignored; the scene's near/far apply).
+        let r = Rays::<F>::from_tensor(t, "--rays")?;
+        let n = r.len();
+        return Ok(Batch {
+            o: r.o,
+            d: r.d,
+            shape: vec![n],
+            near: sc.view.near,
+            far: sc.view.far,
+            kind: None,
+        });
+    }
+    match src.as_str() {
+        "camera" => camera_batch(ctx, sc, None),
+        "hard" | "incoherent" => {
+            let total = if src == "hard" {
+                count as u64 * HARD_KINDS.len() as u64
+            } else {
+                count as u64
+            };
+            ctx.budget
+                .check("voxel rays", bytes_for(total, 2 * 24 + 64))?;
+            let (rays, kind) = if src == "hard" {
+                let h = hard(&sc.shape, sc.depth, count, seed);
+                let kind = h
+                    .iter()
+                    .map(|(_, k)| HARD_KINDS.iter().position(|x| x == k).unwrap_or(0) as i32)
+                    .collect();
+                (h.into_iter().map(|(r, _)| r).collect(), Some(kind))
+            } else {
+                (incoherent(count, seed), None)
+            };
+            let n = rays.len();
+            let (o, d) = from64::<F>(rays);
+            Ok(Batch {
+                o,
+                d,
+                shape: vec![n],
+                near: 0.0,
+                far: f64::INFINITY,
+                kind,
+            })
+        }
+        other => Err(Error::invalid(
+            at,
+            format!("{other:?} is not camera, hard or incoherent"),
+        )),
+    }
+}
+
+/// The batch in the (N, 9) dump layout of `Rays::to_tensor` (`--dump-failing`;
+/// `render --rays` replays it). An infinite far is written as 1e30.
+fn dump_rays<F: Real>(b: &Batch<F>) -> Tensor {
+    let n = b.o.len();
+    let far = if b.far.is_finite() { b.far } else { 1e30 };
+    Rays {
+        o: b.o.clone(),
+        d: b.d.clone(),
+        t0: vec![F::of(b.near); n],
+        t1: vec![F::of(far); n],
+        pixel: (0..n as u32).collect(),
+    }
+    .to_tensor()
+}
+
+fn with_3(shape: &[usize]) -> Vec<usize> {
+    let mut s = shape.to_vec();
+    s.push(3);
+    s
+}
+
+/// `i + N (j + N k)` (N = 2^depth) as f64, -1 on a miss: one number per ray
+/// for counting differing voxels; exact for depth <= 17.
+fn leaf_key(leaf: &[[i32; 3]], depth: u32) -> Vec<f64> {
+    let n = (1u64 << depth) as f64;
+    leaf.iter()
+        .map(|v| {
+            if v[0] < 0 {
+                -1.0
+            } else {
+                v[0] as f64 + n * (v[1] as f64 + n * v[2] as f64)
+            }
+        })
+        .collect()
+}
+
+fn put_hits<F: Real>(
+    out: &mut Outputs,
+    h: VoxelHits<F>,
+    shape: &[usize],
+    depth: u32,
+    image: bool,
+) -> Result<()> {
+    out.tensor(
+        "leaf_key",
+        Tensor::from_shape_vec(shape, leaf_key(&h.leaf, depth))?,
+    );
+    if image {
+        let img: Vec<[F; 3]> = h
+            .hit
+            .iter()
+            .zip(&h.normal)
+            .map(|(&x, &n)| shade(x == 1, n))
+            .collect();
+        out.tensor("image", Tensor::real3(shape, &img)?);
+    }
+    out.tensor("hit", Tensor::from_shape_vec(shape, h.hit)?);
+    out.tensor("t", Tensor::real(shape, h.t)?);
+    out.tensor(
+        "leaf",
+        Tensor::from_shape_vec(
+            &with_3(shape),
+            h.leaf.into_iter().flatten().collect::<Vec<i32>>(),
+        )?,
+    );
+    out.tensor("normal", Tensor::real3(shape, &h.normal)?);
+    out.tensor("iters", Tensor::from_shape_vec(shape, h.iters)?);
+    out.counter("capped", h.capped);
+    Ok(())
+}
+
+fn build_metrics(out: &mut Outputs, tree: &Octree) {
+    let s = &tree.stats;
+    out.metric("build_s", s.build_s)
+        .metric("bytes_per_voxel", s.bytes_per_voxel())
+        .metric(
+            "bytes_per_leaf",
+            if s.leaves == 0 {
+                0.0
+            } else {
+                s.bytes as f64 / s.leaves as f64
+            },
+        )
+        .metric("solid_voxels", s.solid_voxels as f64);
+    out.counter("bytes", s.bytes)
+        .counter("descriptors", s.descriptors)
+        .counter("far_slots", s.far_slots);
+    out.counter("leaves", s.leaves);
+}
+
+fn render_in<F: CastReal>(ctx: &OpCtx, sc: &VoxelScene, tree: &Octree) -> Result<Outputs> {
+    let b = batch::<F>(ctx, sc)?;
+    let n = b.o.len() as u64;
+    ctx.budget.check(
+        "voxels.render outputs",
+        bytes_for(n, 12 * std::mem::size_of::<F>() as u64 + 32),
+    )?;
+    let p = CastParams {
+        near: b.near,
+        far: b.far,
+        lod: sc.lod,
+        max_iter: sc.max_iter,
+    };
+    let t0 = Instant::now();
+    let h = cast_all::<F>(tree, &b.o, &b.d, &p);
+    let s = t0.elapsed().as_secs_f64();
+    let mut out = Outputs::default();
+    if ctx.dump {
+        out.tensor("rays", dump_rays(&b));
+    }
+    out.metric("cast_s", s)
+        .metric("mrays_per_s", n as f64 / s.max(1e-12) / 1e6);
+    out.counter("rays", n)
+        .counter("hits", h.hit.iter().map(|&x| x as u64).sum());
+    put_hits(&mut out, h, &b.shape, sc.depth, true)?;
+    if let Some(k) = b.kind {
+        out.tensor("kind", Tensor::from_shape_vec(&b.shape, k)?);
+    }
+    build_metrics(&mut out, tree);
+    Ok(out)
+}
+
+fn render(ctx: &OpCtx) -> Result<Outputs> {
+    ctx.cpu_only()?;
+    let sc = load(ctx)?;
+    let tree = build(&sc.shape, sc.depth, &ctx.budget)?;
+    match ctx.precision {
+        Precision::F32 => render_in::<f32>(ctx, &sc, &tree),
+        Precision::F64 => render_in::<f64>(ctx, &sc, &tree),
+    }
+}
+
+fn widen<F: Real>(b: &Batch<F>) -> (Vec<[f64; 3]>, Vec<[f64; 3]>) {
+    (
+        b.o.iter().map(|v| v.map(|x| x.f64())).collect(),
+        b.d.iter().map(|v| v.map(|x| x.f64())).collect(),
+    )
+}
+
+fn referee_in<F: Real>(ctx: &OpCtx, sc: &VoxelScene) -> Result<Outputs> {
+    let b = batch::<F>(ctx, sc)?;
+    let margin: f64 = ctx.param_or("near_margin", 0.0)?;
+    if !(margin >= 0.0 && margin.is_finite()) {
+        return Err(Error::invalid(
+            format!("{} params.near_margin", ctx.case_id),
+            "must be finite and >= 0",
+        ));
+    }
+    let (o, d) = widen(&b);
+    let t0 = Instant::now();
+    let r = referee_all(&sc.shape, sc.depth, &o, &d, b.near, b.far, margin);
+    let s = t0.elapsed().as_secs_f64();
+    let n = o.len();
+    let mut out = Outputs::default();
+    out.metric("time_s", s)
+        .metric("mrays_per_s", n as f64 / s.max(1e-12) / 1e6);
+    out.counter("rays", n as u64);
+    out.counter("ties", r.tie.iter().map(|&x| x as u64).sum());
+    out.counter("near_ties", r.near_tie.iter().map(|&x| x as u64).sum());
+    let untied: Vec<u8> = r.tie.iter().map(|&x| 1 - x).collect();
+    let clear: Vec<u8> = r.near_tie.iter().map(|&x| 1 - x).collect();
+    out.tensor("tie", Tensor::from_shape_vec(&b.shape, r.tie)?);
+    out.tensor("near_tie", Tensor::from_shape_vec(&b.shape, r.near_tie)?);
+    out.tensor("untied", Tensor::from_shape_vec(&b.shape, untied)?);
+    out.tensor("clear", Tensor::from_shape_vec(&b.shape, clear)?);
+    put_hits(&mut out, r.hits, &b.shape, sc.depth, false)?;
+    Ok(out)
+}
+
+fn referee_op(ctx: &OpCtx) -> Result<Outputs> {
+    let sc = load(ctx)?;
+    match ctx.precision {
+        Precision::F32 => referee_in::<f32>(ctx, &sc),
+        Precision::F64 => referee_in::<f64>(ctx, &sc),
+    }
+}
+
+/// First t >= near at which `o + t d` (unit d) is inside the ball of
+/// radius `r` about the origin, if any (closed form, f64).
+fn ball_entry(o: [f64; 3], d: [f64; 3], r: f64, near: f64) -> Option<f64> {
+    let b = o[0] * d[0] + o[1] * d[1] + o[2] * d[2];
+    let c = o[0] * o[0] + o[1] * o[1] + o[2] * o[2] - r * r;
+    let disc = b * b - c;
+    if disc < 0.0 {
+        return None;
+    }
+    let q = disc.sqrt();
+    let (t0, t1) = (-b - q, -b + q);
+    if t1 < near {
+        None
+    } else {
+        Some(t0.max(near))
+    }
+}
+
+fn bounds_in<F: Real>(ctx: &OpCtx, sc: &VoxelScene, radius: f64) -> Result<Outputs> {
+    let b = batch::<F>(ctx, sc)?;
+    let slack: f64 = ctx.param_or("slack_rel", 1e-12)?;
+    let (o, d) = widen(&b);
+    let h = 3f64.sqrt() / (1u64 << sc.depth) as f64;
+    let (r_out, r_in) = ((radius + h) * (1.0 + slack), (radius - h) * (1.0 - slack));
+    let res = par_collect("voxels.sphere_bounds", o.len(), |i| {
+        let l = (d[i][0] * d[i][0] + d[i][1] * d[i][1] + d[i][2] * d[i][2]).sqrt();
+        let du = d[i].map(|x| x / l);
+        let e = |r: f64| {
+            ball_entry(o[i], du, r, b.near)
+                .filter(|&t| t <= b.far)
+                .map(|t| t / l)
+        };
+        (e(r_out), if r_in > 0.0 { e(r_in) } else { None })
+    });
+    let mut out = Outputs::default();
+    let t_outer: Vec<f64> = res.iter().map(|r| r.0.unwrap_or(-1.0)).collect();
+    let t_inner: Vec<f64> = res.iter().map(|r| r.1.unwrap_or(-1.0)).collect();
+    out.tensor("t_outer", Tensor::from_shape_vec(&b.shape, t_outer)?);
+    out.tensor("t_inner", Tensor::from_shape_vec(&b.shape, t_inner)?);
+    out.tensor(
+        "meets_outer",
+        Tensor::from_shape_vec(&b.shape, res.iter().map(|r| r.0.is_some() as u8).collect())?,
+    );
+    out.tensor(
+        "meets_inner",
+        Tensor::from_shape_vec(&b.shape, res.iter().map(|r| r.1.is_some() as u8).collect())?,
+    );
+    Ok(out)
+}
+
+fn sphere_bounds(ctx: &OpCtx) -> Result<Outputs> {
+    let sc = load(ctx)?;
+    let Shape::Sphere { radius } = sc.shape else {
+        return Err(Error::invalid(
+            ctx.scene()?.at(),
+            "voxels.sphere_bounds needs a `shape: {type: sphere}` scene",
+        ));
+    };
+    match ctx.precision {
+        Precision::F32 => bounds_in::<f32>(ctx, &sc, radius),
+        Precision::F64 => bounds_in::<f64>(ctx, &sc, radius),
+    }
+}
+
+/// CPU seconds this process has used (user + system, all threads), from
+/// /proc/self/stat (USER_HZ = 100); `None` off Linux. Throughput per CPU
+/// second is robust to other jobs sharing the machine, unlike wall time.
+fn process_cpu_s() -> Option<f64> {
+    let s = std::fs::read_to_string("/proc/self/stat").ok()?;
+    let rest = &s[s.rfind(')')? + 2..];
+    let f: Vec<&str> = rest.split_whitespace().collect();
+    let ticks = f.get(11)?.parse::<u64>().ok()? + f.get(12)?.parse::<u64>().ok()?;
+    Some(ticks as f64 / 100.0)
+}
+
+/// Runs `f`, returning its result, wall seconds and CPU seconds (0 when unknown).
+fn timed<R>(f: impl FnOnce() -> R) -> (R, f64, f64) {
+    let (c0, t0) = (process_cpu_s(), Instant::now());
+    let r = f();
+    let wall = t0.elapsed().as_secs_f64();
+    let cpu = match (c0, process_cpu_s()) {
+        (Some(a), Some(b)) => b - a,
+        _ => 0.0,
+    };
+    (r, wall, cpu)
+}
+
+fn bench_in<F: CastReal>(ctx: &OpCtx, sc: &VoxelScene, tree: &Octree) -> Result<Outputs> {
+    let count: u32 = ctx.param_or("count", 1 << 20)?;
+    let size: u32 = ctx.param_or("size", 1024)?;
+    let seed: u32 = ctx.param_or("seed", ctx.seed)?;
+    let stride: usize = ctx.param_or("referee_stride", 16usize)?.max(1);
+    let threads = rayon::current_num_threads() as f64;
+    let mut out = Outputs::default();
+    out.metric("threads", threads);
+    build_metrics(&mut out, tree);
+    let coherent = camera_batch::<F>(ctx, sc, Some(size))?;
+    let (io, id) = from64::<F>(incoherent(count, seed));
+    let inc = Batch {
+        o: io,
+        d: id,
+        shape: vec![count as usize],
+        near: 0.0,
+        far: f64::INFINITY,
+        kind: None,
+    };
+    for (name, b) in [("coherent", &coherent), ("incoherent", &inc)] {
+        let p = CastParams {
+            near: b.near,
+            far: b.far,
+            lod: sc.lod,
+            max_iter: sc.max_iter,
+        };
+        let (h, wall, cpu) = timed(|| cast_all::<F>(tree, &b.o, &b.d, &p));
+        let n = b.o.len() as f64;
+        let rate = n / wall.max(1e-12) / 1e6;
+        out.metric(&format!("{name}_mrays_per_s"), rate);
+        out.metric(&format!("{name}_mrays_per_s_per_core"), rate / threads);
+        out.metric(
+            &format!("{name}_mrays_per_cpu_s"),
+            if cpu > 0.0 { n / cpu / 1e6 } else { 0.0 },
+        );
+        let hits = h.hit.iter().map(|&x| x as f64).sum::<f64>();
+        out.metric(&format!("{name}_hit_fraction"), hits / n);
+        out.metric(
+            &format!("{name}_mean_iters"),
+            h.iters.iter().map(|&x| x as f64).sum::<f64>() / n,
+        );
+        // The referee on every stride-th ray of the same set.
+        let (o, d) = widen(b);
+        let (o, d): (Vec<_>, Vec<_>) = o.into_iter().zip(d).step_by(stride).unzip();
+        let (r, rwall, rcpu) =
+            timed(|| referee_all(&sc.shape, sc.depth, &o, &d, b.near, b.far, 0.0));
+        let m = r.tie.len() as f64;
+        let rrate = m / rwall.max(1e-12) / 1e6;
+        out.metric(&format!("referee_{name}_mrays_per_s"), rrate);
+        out.metric(
+            &format!("referee_{name}_mrays_per_cpu_s"),
+            if rcpu > 0.0 { m / rcpu / 1e6 } else { 0.0 },
+        );
+        out.metric(
+            &format!("{name}_speedup_vs_referee"),
+            rate / rrate.max(1e-12),
+        );
+    }
+    Ok(out)
+}
+
+fn bench(ctx: &OpCtx) -> Result<Outputs> {
+    ctx.cpu_only()?;
+    let sc = load(ctx)?;
+    let (tree, _, build_cpu) = timed(|| build(&sc.shape, sc.depth, &ctx.budget));
+    let tree = tree?;
+    let mut out = match ctx.precision {
+        Precision::F32 => bench_in::<f32>(ctx, &sc, &tree),
+        Precision::F64 => bench_in::<f64>(ctx, &sc, &tree),
+    }?;
+    out.metric("build_cpu_s", build_cpu);
+    Ok(out)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::budget::MemBudget;
+    use crate::judge::ops::BackendKind;
+    use crate::scene::SceneDoc;
+    use serde_yaml::Value;
+
+    const SPHERE: &str = "renderer: voxels\nshape: {type: sphere, radius: 0.8}\ndepth: 6\n\
+        camera: {type: pinhole, position: [2.0, 1.5, 2.5], target: [0, 0, 0], fov_y: 45}\nwidth: 48\nheight: 40\n";
+
+    fn run(op: &str, scene: &str, params: &str, precision: Precision) -> Outputs {
+        let doc = SceneDoc {
+            path: "t.yaml".into(),
+            value: serde_yaml::from_str(scene).unwrap(),
+        };
+        let params: Value = serde_yaml::from_str(params).unwrap();
+        let ctx = OpCtx {
+            case_id: "t",
+            scene: Some(&doc),
+            params: &params,
+            backend: BackendKind::Cpu,
+            precision,
+            seed: 1,
+            budget: MemBudget::fixed(1 << 30),
+            dump: false,
+            rays: None,
+            root: std::path::Path::new("."),
+        };
+        (super::super::find(op).unwrap().run)(&ctx).unwrap()
+    }
+
+    #[test]
+    fn render_writes_scenes_outputs_with_their_shapes_and_dtypes() {
+        let out = run("voxels.render", SPHERE, "{}", Precision::F32);
+        let t = &out.tensors;
+        assert_eq!(
+            (t["hit"].dtype(), t["hit"].shape()),
+            ("uint8", &[40usize, 48][..])
+        );
+        assert_eq!(
+            (t["t"].dtype(), t["leaf"].dtype(), t["leaf"].shape()),
+            ("float32", "int32", &[40usize, 48, 3][..])
+        );
+        assert_eq!(t["image"].shape(), &[40, 48, 3]);
+        assert!(out.counters["hits"] > 300);
+        let hit = t["hit"].to_f64_vec();
+        let leaf = t["leaf"].to_f64_vec();
+        let tt = t["t"].to_f64_vec();
+        for i in 0..hit.len() {
+            if hit[i] == 0.0 {
+                assert_eq!((tt[i], leaf[3 * i]), (-1.0, -1.0));
+            }
+        }
+    }
+
+    #[test]
+    fn render_and_referee_agree_on_untied_camera_and_hard_rays() {
+        for params in ["{}", "{rays: hard, count: 60}"] {
+            let a = run("voxels.render", SPHERE, params, Precision::F64);
+            let r = run("voxels.referee", SPHERE, params, Precision::F64);
+            let untied = r.tensors["untied"].to_f64_vec();
+            for name in ["hit", "t", "normal", "leaf"] {
+                let x = a.tensors[name].to_f64_vec();
+                let y = r.tensors[name].to_f64_vec();
+                let k = x.len() / untied.len();
+                for i in 0..x.len() {
+                    if untied[i / k] == 1.0 {
+                        assert!(
+                            (x[i] - y[i]).abs() <= 1e-12 * y[i].abs().max(1.0),
+                            "{params} {name} {i}: {} {}",
+                            x[i],
+                            y[i]
+                        );
+                    }
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn sphere_hits_lie_between_the_bounding_spheres() {
+        let a = run("voxels.render", SPHERE, "{}", Precision::F64);
+        let b = run("voxels.sphere_bounds", SPHERE, "{}", Precision::F64);
+        let (hit, t) = (a.tensors["hit"].to_f64_vec(), a.tensors["t"].to_f64_vec());
+        let (to, ti, mi) = (
+            b.tensors["t_outer"].to_f64_vec(),
+            b.tensors["t_inner"].to_f64_vec(),
+            b.tensors["meets_inner"].to_f64_vec(),
+        );
+        for i in 0..hit.len() {
+            if hit[i] == 1.0 {
+                assert!(t[i] >= to[i] && to[i] >= 0.0);
+            }
+            if mi[i] == 1.0 {
+                assert!(hit[i] == 1.0 && t[i] <= ti[i]);
+            }
+        }
+    }
+}

@@ -1,0 +1,183 @@
+//! The kernel registry: every `kernels/*.wgsl` file, loaded with
+//! `include_str!` and `kernels/common.wgsl` prepended, compiled once per
+//! process into compute pipelines (memoised by kernel and entry point).
+//!
+//! A unit test validates every file in `kernels/` with naga, listing the
+//! directory so a new file cannot be left out of [`KERNELS`].
+
+use std::collections::HashMap;
+use std::sync::Mutex;
+
+use super::context::GpuContext;
+use crate::error::{Error, Result};
+
+/// `kernels/common.wgsl`, prepended to every kernel.
+pub const COMMON: &str = include_str!("../../kernels/common.wgsl");
+
+/// One kernel file: its name (file stem) and its own text (without common).
+#[derive(Clone, Copy, Debug)]
+pub struct Kernel {
+    pub name: &'static str,
+    pub text: &'static str,
+}
+
+macro_rules! kernel {
+    ($name:literal) => {
+        Kernel {
+            name: $name,
+            text: include_str!(concat!("../../kernels/", $name, ".wgsl")),
+        }
+    };
+}
+
+/// Every kernel file except `common.wgsl`.
+pub const KERNELS: &[Kernel] = &[
+    kernel!("rays"),
+    kernel!("rng"),
+    kernel!("expm1"),
+    kernel!("volume"),
+];
+
+/// The full source of kernel `name`: common.wgsl, then the file.
+pub fn source(name: &str) -> Result<String> {
+    let k = KERNELS.iter().find(|k| k.name == name).ok_or_else(|| {
+        Error::invalid(
+            "kernel",
+            format!("no kernel {name:?} in kernels/ (src/gpu/kernels.rs KERNELS)"),
+        )
+    })?;
+    Ok(format!(
+        "{COMMON}\n// ---- kernels/{}.wgsl ----\n{}",
+        k.name, k.text
+    ))
+}
+
+type Key = (&'static str, &'static str);
+
+static PIPELINES: Mutex<Option<HashMap<Key, wgpu::ComputePipeline>>> = Mutex::new(None);
+
+/// The compute pipeline of `entry` in kernel `name`, built on first use
+/// (with the context's pipeline cache) and shared after. Bind group 0 uses
+/// the layout wgpu derives from the shader.
+pub fn pipeline(
+    ctx: &GpuContext,
+    name: &'static str,
+    entry: &'static str,
+) -> Result<wgpu::ComputePipeline> {
+    let mut guard = PIPELINES
+        .lock()
+        .map_err(|_| Error::Gpu("pipeline table poisoned by an earlier panic".into()))?;
+    let table = guard.get_or_insert_with(HashMap::new);
+    if let Some(p) = table.get(&(name, entry)) {
+        return Ok(p.clone());
+    }
+    let src = source(name)?;
+    let scope = ctx.device.push_error_scope(wgpu::ErrorFilter::Validation);
+    let module = ctx
+        .device
+        .create_shader_module(wgpu::ShaderModuleDescriptor {
+            label: Some(name),
+            source: wgpu::ShaderSource::Wgsl(src.into()),
+        });
+    let p = ctx
+        .device
+        .create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+            label: Some(entry),
+            layout: None,
+            module: &module,
+            entry_point: Some(entry),
+            compilation_options: Default::default(),
+            cache: ctx.pipeline_cache(),
+        });
+    if let Some(e) = pollster::block_on(scope.pop()) {
+        return Err(Error::Gpu(format!(
+            "kernels/{name}.wgsl entry {entry}: {e}"
+        )));
+    }
+    ctx.save_pipeline_cache();
+    table.insert((name, entry), p.clone());
+    Ok(p)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Parses and validates `src` with naga (all capabilities wgpu may
+    /// grant are not assumed: the default set, what every adapter has).
+    fn validate(name: &str, src: &str) {
+        let module = naga::front::wgsl::parse_str(src)
+            .unwrap_or_else(|e| panic!("{name}: {}", e.emit_to_string(src)));
+        let mut v = naga::valid::Validator::new(
+            naga::valid::ValidationFlags::all(),
+            naga::valid::Capabilities::default(),
+        );
+        if let Err(e) = v.validate(&module) {
+            panic!("{name}: {}", e.emit_to_string(src));
+        }
+    }
+
+    #[test]
+    fn every_kernel_file_is_registered_and_valid_wgsl() {
+        let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("kernels");
+        let mut files: Vec<String> = std::fs::read_dir(&dir)
+            .unwrap()
+            .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+            .collect();
+        files.sort();
+        assert!(files.iter().any(|f| f == "common.wgsl"), "{files:?}");
+        for f in &files {
+            let stem = f
+                .strip_suffix(".wgsl")
+                .unwrap_or_else(|| panic!("kernels/{f} is not a .wgsl file"));
+            if stem == "common" {
+                validate("common.wgsl", COMMON);
+                continue;
+            }
+            let k = KERNELS.iter().find(|k| k.name == stem);
+            assert!(
+                k.is_some(),
+                "kernels/{f} is not in src/gpu/kernels.rs KERNELS"
+            );
+            // The registered text is the file on disk (include_str! of it).
+            assert_eq!(
+                k.unwrap().text,
+                std::fs::read_to_string(dir.join(f)).unwrap()
+            );
+            validate(f, &source(stem).unwrap());
+        }
+        assert_eq!(
+            files.len(),
+            KERNELS.len() + 1,
+            "a registered kernel has no file: {files:?}"
+        );
+    }
+
+    #[test]
+    fn kernel_headers_name_their_twin_and_parity_case() {
+        for k in KERNELS {
+            let head: String = k
+                .text
+                .lines()
+                .take_while(|l| l.starts_with("//"))
+                .collect::<Vec<_>>()
+                .join("\n");
+            assert!(
+                head.contains("CPU twin:"),
+                "kernels/{}.wgsl header names no CPU twin",
+                k.name
+            );
+            assert!(
+                head.contains("Parity case"),
+                "kernels/{}.wgsl header names no parity case",
+                k.name
+            );
+        }
+    }
+
+    #[test]
+    fn unknown_kernels_are_refused_by_name() {
+        let e = source("nope").unwrap_err().to_string();
+        assert!(e.contains("nope"), "{e}");
+    }
+}

@@ -1,0 +1,434 @@
+//! `renderer: transport` scenes: curved rays (SCENES.md "Curved rays").
+//!
+//! | key | meaning | default |
+//! | --- | --- | --- |
+//! | `task` | what to trace (below) | required |
+//! | `integrator` | tier and step settings (below) | required |
+//! | `max_steps` | accepted steps per ray before it ends undecided | 1000000 |
+//!
+//! `task.type`:
+//!
+//! | type | keys |
+//! | --- | --- |
+//! | `deflection` | `spacetime`, `impact_parameters` (list, each > 0), `r_start`, `r_end` (default `r_start`), `horizon_eps` (0.01), `repeat` (1: the list traced this many times, for timing) |
+//! | `observer` | `spacetime` (with a horizon), `r_obs`, `angles_deg` (from the inward radial direction), `r_end` (1000), `horizon_eps` (0.01) |
+//! | `grin` | `medium`, `rays` (`[ox, oy, oz, dx, dy, dz]` each), `stop` |
+//!
+//! `spacetime`: `{type: minkowski}`, `{type: schwarzschild, mass}`,
+//! `{type: ellis, b0}`. `medium`: `{type: luneburg, radius}`,
+//! `{type: fish_eye, n0, radius}`, `{type: fibre, n0, alpha}`,
+//! `{type: sech, n0, alpha}`, `{type: grid, sample: MEDIUM, dims: [nx, ny, nz],
+//! aabb: {min, max}, outside: 1}` (the analytic medium sampled at the nodes,
+//! trilinear). `stop`: `{type: lens_exit}`, `{type: axis_return}`,
+//! `{type: approach, point: [x, y, z]}`, `{type: steps, n}`.
+//!
+//! `integrator`:
+//!
+//! | key | meaning | default |
+//! | --- | --- | --- |
+//! | `type` | `rk4`, `dopri5`, `dopri5_fixed`, `verlet`, `yoshida4`, `implicit_midpoint` | required |
+//! | `h` | fixed step (fixed-step tiers; exactly one of `h`, `eta`) | - |
+//! | `eta` | step law `h = eta * scale(y)` (`r`, `r - 2M`, `sqrt(b0^2 + l^2)`, 1 for GRIN) | - |
+//! | `h_min`, `h_max` | step bounds (law and controller) | 1e-12, 1e30 |
+//! | `rtol`, `atol`, `h0` | Dormand–Prince controller (`dopri5` only) | 1e-10, 1e-12, 0.01 |
+//! | `project` | project onto H = 0 after each step | false |
+
+use serde::Deserialize;
+
+use super::SceneDoc;
+use crate::error::{Error, Result};
+use crate::real::Real;
+use crate::transport::grin::{Grid, Medium};
+use crate::transport::integrate::{Controller, Options, StepLaw, Tier};
+use crate::transport::metric::Spacetime;
+use crate::transport::tasks::{Deflection, GrinRays, GrinStop, ObserverScan, Task};
+
+fn one_u32() -> u32 {
+    1
+}
+fn eps_h() -> f64 {
+    0.01
+}
+fn thousand() -> f64 {
+    1000.0
+}
+fn million() -> u64 {
+    1_000_000
+}
+fn one() -> f64 {
+    1.0
+}
+
+#[derive(Clone, Copy, Debug, Deserialize, PartialEq)]
+#[serde(tag = "type", rename_all = "snake_case", deny_unknown_fields)]
+pub enum SpacetimeSpec {
+    Minkowski,
+    Schwarzschild { mass: f64 },
+    Ellis { b0: f64 },
+}
+
+impl SpacetimeSpec {
+    pub fn build<F: Real>(&self) -> Result<Spacetime<F>> {
+        match *self {
+            SpacetimeSpec::Minkowski => Ok(Spacetime::Minkowski),
+            SpacetimeSpec::Schwarzschild { mass } if mass > 0.0 && mass.is_finite() => {
+                Ok(Spacetime::Schwarzschild { mass: F::of(mass) })
+            }
+            SpacetimeSpec::Ellis { b0 } if b0 > 0.0 && b0.is_finite() => {
+                Ok(Spacetime::Ellis { b0: F::of(b0) })
+            }
+            _ => Err(Error::invalid(
+                "task.spacetime",
+                format!("{self:?}: mass / b0 must be > 0 and finite"),
+            )),
+        }
+    }
+}
+
+#[derive(Clone, Copy, Debug, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct BoxSpec {
+    pub min: [f64; 3],
+    pub max: [f64; 3],
+}
+
+#[derive(Clone, Debug, Deserialize, PartialEq)]
+#[serde(tag = "type", rename_all = "snake_case", deny_unknown_fields)]
+pub enum MediumSpec {
+    Luneburg {
+        radius: f64,
+    },
+    FishEye {
+        n0: f64,
+        radius: f64,
+    },
+    Fibre {
+        n0: f64,
+        alpha: f64,
+    },
+    Sech {
+        n0: f64,
+        alpha: f64,
+    },
+    Grid {
+        sample: Box<MediumSpec>,
+        dims: [usize; 3],
+        aabb: BoxSpec,
+        #[serde(default = "one")]
+        outside: f64,
+    },
+}
+
+/// Largest grid a scene may sample (nodes).
+pub const MAX_GRID_NODES: usize = 1 << 27;
+
+impl MediumSpec {
+    pub fn build<F: Real>(&self) -> Result<Medium<F>> {
+        let pos = |name: &str, v: f64| {
+            if v > 0.0 && v.is_finite() {
+                Ok(F::of(v))
+            } else {
+                Err(Error::invalid(
+                    format!("task.medium.{name}"),
+                    format!("{v}: must be > 0 and finite"),
+                ))
+            }
+        };
+        Ok(match self {
+            MediumSpec::Luneburg { radius } => Medium::Luneburg {
+                radius: pos("radius", *radius)?,
+            },
+            MediumSpec::FishEye { n0, radius } => Medium::FishEye {
+                n0: pos("n0", *n0)?,
+                radius: pos("radius", *radius)?,
+            },
+            MediumSpec::Fibre { n0, alpha } => Medium::Fibre {
+                n0: pos("n0", *n0)?,
+                alpha: pos("alpha", *alpha)?,
+            },
+            MediumSpec::Sech { n0, alpha } => Medium::Sech {
+                n0: pos("n0", *n0)?,
+                alpha: pos("alpha", *alpha)?,
+            },
+            MediumSpec::Grid {
+                sample,
+                dims,
+                aabb,
+                outside,
+            } => {
+                if matches!(**sample, MediumSpec::Grid { .. }) {
+                    return Err(Error::invalid(
+                        "task.medium.sample",
+                        "a grid samples an analytic medium, not another grid",
+                    ));
+                }
+                let nodes = dims.iter().try_fold(1usize, |a, &d| a.checked_mul(d));
+                if nodes.is_none_or(|n| n > MAX_GRID_NODES) {
+                    return Err(Error::invalid(
+                        "task.medium.dims",
+                        format!("{dims:?}: more than {MAX_GRID_NODES} nodes"),
+                    ));
+                }
+                let m = sample.build::<F>()?;
+                Medium::Grid(Grid::sample(
+                    &m,
+                    *dims,
+                    aabb.min.map(F::of),
+                    aabb.max.map(F::of),
+                    pos("outside", *outside)?,
+                )?)
+            }
+        })
+    }
+}
+
+#[derive(Clone, Copy, Debug, Deserialize, PartialEq)]
+#[serde(tag = "type", rename_all = "snake_case", deny_unknown_fields)]
+pub enum StopSpec {
+    LensExit,
+    AxisReturn,
+    Approach { point: [f64; 3] },
+    Steps { n: u64 },
+}
+
+#[derive(Clone, Debug, Deserialize, PartialEq)]
+#[serde(tag = "type", rename_all = "snake_case", deny_unknown_fields)]
+pub enum TaskSpec {
+    Deflection {
+        spacetime: SpacetimeSpec,
+        impact_parameters: Vec<f64>,
+        r_start: f64,
+        #[serde(default)]
+        r_end: Option<f64>,
+        #[serde(default = "eps_h")]
+        horizon_eps: f64,
+        #[serde(default = "one_u32")]
+        repeat: u32,
+    },
+    Observer {
+        spacetime: SpacetimeSpec,
+        r_obs: f64,
+        angles_deg: Vec<f64>,
+        #[serde(default = "thousand")]
+        r_end: f64,
+        #[serde(default = "eps_h")]
+        horizon_eps: f64,
+    },
+    Grin {
+        medium: MediumSpec,
+        rays: Vec<[f64; 6]>,
+        stop: StopSpec,
+    },
+}
+
+#[derive(Clone, Copy, Debug, Deserialize, PartialEq, Eq)]
+#[serde(rename_all = "snake_case")]
+pub enum TierKind {
+    Rk4,
+    Dopri5,
+    Dopri5Fixed,
+    Verlet,
+    Yoshida4,
+    ImplicitMidpoint,
+}
+
+#[derive(Clone, Copy, Debug, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct IntegratorSpec {
+    #[serde(rename = "type")]
+    pub kind: TierKind,
+    pub h: Option<f64>,
+    pub eta: Option<f64>,
+    pub h_min: Option<f64>,
+    pub h_max: Option<f64>,
+    pub rtol: Option<f64>,
+    pub atol: Option<f64>,
+    pub h0: Option<f64>,
+    #[serde(default)]
+    pub project: bool,
+}
+
+impl IntegratorSpec {
+    pub fn build<F: Real>(&self) -> Result<Tier<F>> {
+        Ok(match self.kind {
+            TierKind::Dopri5 => {
+                if self.h.is_some() || self.eta.is_some() {
+                    return Err(Error::invalid(
+                        "integrator",
+                        "dopri5 chooses its own steps: use rtol/atol/h0, not h or eta",
+                    ));
+                }
+                Tier::Dopri5(Controller {
+                    rtol: F::of(self.rtol.unwrap_or(1e-10)),
+                    atol: F::of(self.atol.unwrap_or(1e-12)),
+                    h0: F::of(self.h0.unwrap_or(0.01)),
+                    h_min: F::of(self.h_min.unwrap_or(1e-12)),
+                    h_max: F::of(self.h_max.unwrap_or(1e30)),
+                })
+            }
+            TierKind::Rk4 => Tier::Rk4(self.law()?),
+            TierKind::Dopri5Fixed => Tier::Dopri5Fixed(self.law()?),
+            TierKind::Verlet => Tier::Verlet(self.law()?),
+            TierKind::Yoshida4 => Tier::Yoshida4(self.law()?),
+            TierKind::ImplicitMidpoint => Tier::ImplicitMidpoint(self.law()?),
+        })
+    }
+
+    /// The step law of a fixed-step tier.
+    fn law<F: Real>(&self) -> Result<StepLaw<F>> {
+        let at = "integrator";
+        if self.rtol.is_some() || self.atol.is_some() || self.h0.is_some() {
+            return Err(Error::invalid(at, "rtol/atol/h0 apply to dopri5 only"));
+        }
+        match (self.h, self.eta) {
+            (Some(h), None) => {
+                if self.h_min.is_some() || self.h_max.is_some() {
+                    return Err(Error::invalid(
+                        at,
+                        "h_min/h_max apply to the eta law, not a fixed h",
+                    ));
+                }
+                Ok(StepLaw::Fixed { h: F::of(h) })
+            }
+            (None, Some(eta)) => Ok(StepLaw::Scaled {
+                eta: F::of(eta),
+                h_min: F::of(self.h_min.unwrap_or(1e-12)),
+                h_max: F::of(self.h_max.unwrap_or(1e30)),
+            }),
+            _ => Err(Error::invalid(
+                at,
+                "give exactly one of `h` (fixed step) and `eta` (step law)",
+            )),
+        }
+    }
+}
+
+/// A parsed transport scene.
+#[derive(Clone, Debug, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct TransportScene {
+    pub renderer: String,
+    pub task: TaskSpec,
+    pub integrator: IntegratorSpec,
+    #[serde(default = "million")]
+    pub max_steps: u64,
+}
+
+impl TransportScene {
+    /// The typed task and integration options in precision `F`.
+    pub fn build<F: Real>(&self) -> Result<(Task<F>, Options<F>)> {
+        let opt = Options {
+            tier: self.integrator.build()?,
+            project: self.integrator.project,
+            max_steps: self.max_steps,
+        };
+        let task = match &self.task {
+            TaskSpec::Deflection {
+                spacetime,
+                impact_parameters,
+                r_start,
+                r_end,
+                horizon_eps,
+                repeat,
+            } => {
+                let n = impact_parameters
+                    .len()
+                    .checked_mul(*repeat as usize)
+                    .filter(|&n| n <= 1 << 24);
+                let n =
+                    n.ok_or_else(|| Error::invalid("task.repeat", "too many rays (over 2^24)"))?;
+                Task::Deflection(Deflection {
+                    spacetime: spacetime.build()?,
+                    impact: impact_parameters.iter().copied().cycle().take(n).collect(),
+                    r_start: *r_start,
+                    r_end: r_end.unwrap_or(*r_start),
+                    horizon_eps: *horizon_eps,
+                })
+            }
+            TaskSpec::Observer {
+                spacetime,
+                r_obs,
+                angles_deg,
+                r_end,
+                horizon_eps,
+            } => Task::Observer(ObserverScan {
+                spacetime: spacetime.build()?,
+                r_obs: *r_obs,
+                angles_deg: angles_deg.clone(),
+                r_end: *r_end,
+                horizon_eps: *horizon_eps,
+            }),
+            TaskSpec::Grin { medium, rays, stop } => Task::Grin(GrinRays {
+                medium: medium.build()?,
+                rays: rays.clone(),
+                stop: match *stop {
+                    StopSpec::LensExit => GrinStop::LensExit,
+                    StopSpec::AxisReturn => GrinStop::AxisReturn,
+                    StopSpec::Approach { point } => GrinStop::Approach {
+                        point: point.map(F::of),
+                    },
+                    StopSpec::Steps { n } => GrinStop::Steps { n },
+                },
+            }),
+        };
+        Ok((task, opt))
+    }
+}
+
+/// Parses a `renderer: transport` scene (unknown keys are errors).
+pub fn parse(doc: &SceneDoc) -> Result<TransportScene> {
+    let s: TransportScene = doc.parse()?;
+    s.build::<f64>().map_err(|e| match e {
+        Error::InvalidInput { at, what } => Error::invalid(format!("{}: {at}", doc.at()), what),
+        other => other,
+    })?;
+    Ok(s)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn doc(text: &str) -> SceneDoc {
+        SceneDoc {
+            path: "t.yaml".into(),
+            value: serde_yaml::from_str(text).unwrap(),
+        }
+    }
+
+    #[test]
+    fn deflection_scene_parses_and_builds() {
+        let d = doc("renderer: transport\ntask: {type: deflection, spacetime: {type: schwarzschild, mass: 1}, impact_parameters: [6, 8], r_start: 1000, repeat: 2}\nintegrator: {type: rk4, eta: 0.01}\n");
+        let s = parse(&d).unwrap();
+        let (t, o) = s.build::<f32>().unwrap();
+        match t {
+            Task::Deflection(d) => {
+                assert_eq!((d.impact, d.r_end), (vec![6.0, 8.0, 6.0, 8.0], 1000.0))
+            }
+            other => panic!("{other:?}"),
+        }
+        assert_eq!(o.max_steps, 1_000_000);
+    }
+
+    #[test]
+    fn bad_integrator_and_unknown_keys_are_refused() {
+        let base = "renderer: transport\ntask: {type: grin, medium: {type: fibre, n0: 1.5, alpha: 0.5}, rays: [[0,0,0,1,0.1,0]], stop: {type: axis_return}}\n";
+        for (bad, want) in [
+            ("integrator: {type: rk4}\n", "exactly one"),
+            ("integrator: {type: rk4, h: 0.1, eta: 0.1}\n", "exactly one"),
+            ("integrator: {type: dopri5, h: 0.1}\n", "dopri5"),
+            (
+                "integrator: {type: verlet, h: 0.1, rtol: 1e-3}\n",
+                "dopri5 only",
+            ),
+            ("integrator: {type: rk4, h: 0.1, colour: 3}\n", "colour"),
+        ] {
+            let e = parse(&doc(&format!("{base}{bad}")))
+                .unwrap_err()
+                .to_string();
+            assert!(e.contains(want), "{bad}: {e}");
+        }
+        let e = parse(&doc("renderer: transport\ntask: {type: grin, medium: {type: fibre, n0: -1, alpha: 0.5}, rays: [], stop: {type: axis_return}}\nintegrator: {type: rk4, h: 0.1}\n")).unwrap_err();
+        assert!(e.to_string().contains("n0"), "{e}");
+    }
+}

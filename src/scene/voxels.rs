@@ -1,0 +1,154 @@
+//! `renderer: voxels` scenes (SCENES.md "Sparse voxels"): a voxelised shape
+//! cast by the ESVO octree, plus the shared view block (`scene/rays.rs`).
+//!
+//! | key | meaning | default |
+//! | --- | --- | --- |
+//! | `shape` | `{type: sphere, radius}` (centre-inside test), `{type: menger, level}` or `{type: boxes, boxes: [{min: [i, j, k], max: [i, j, k]}, ..]}` (inclusive voxel boxes) | required |
+//! | `depth` | octree depth d: 2^d voxels per axis over [-1, 1]^3, 1..=22 | required |
+//! | `lod` | `{orig_size, dir_size}`: LOD cut when `orig_size + t dir_size` >= voxel size (world units) | off |
+//! | `max_iter` | cast iteration cap per ray | max(2^16, 16 * 2^depth) |
+//! | view keys | `camera`, `width`, `height`, `roi`, `near`, `far`, ... | see `scene/rays.rs` |
+
+use serde::Deserialize;
+
+use super::rays::{ViewSpec, VIEW_KEYS};
+use super::SceneDoc;
+use crate::error::{Error, Result};
+use crate::voxels::cast::{default_max_iter, Lod};
+use crate::voxels::shape::{Shape, VoxelBox};
+
+#[derive(Clone, Copy, Debug, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct BoxSpec {
+    pub min: [u32; 3],
+    pub max: [u32; 3],
+}
+
+/// The `shape:` block.
+#[derive(Clone, Debug, Deserialize, PartialEq)]
+#[serde(tag = "type", rename_all = "snake_case", deny_unknown_fields)]
+pub enum ShapeSpec {
+    Sphere { radius: f64 },
+    Menger { level: u32 },
+    Boxes { boxes: Vec<BoxSpec> },
+}
+
+#[derive(Clone, Copy, Debug, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct LodSpec {
+    pub orig_size: f64,
+    pub dir_size: f64,
+}
+
+/// The non-view keys of a voxel scene.
+#[derive(Clone, Debug, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct VoxelsRest {
+    pub renderer: String,
+    pub shape: ShapeSpec,
+    pub depth: u32,
+    #[serde(default)]
+    pub lod: Option<LodSpec>,
+    #[serde(default)]
+    pub max_iter: Option<u32>,
+}
+
+/// A parsed, validated voxel scene.
+#[derive(Clone, Debug, PartialEq)]
+pub struct VoxelScene {
+    pub view: ViewSpec,
+    pub shape: Shape,
+    pub depth: u32,
+    pub lod: Option<Lod>,
+    pub max_iter: u32,
+}
+
+/// Parses and validates a `renderer: voxels` scene.
+pub fn parse(doc: &SceneDoc) -> Result<VoxelScene> {
+    let (view, rest): (ViewSpec, VoxelsRest) = doc.parse_split(VIEW_KEYS)?;
+    let at = doc.at();
+    let shape = match rest.shape {
+        ShapeSpec::Sphere { radius } => Shape::Sphere { radius },
+        ShapeSpec::Menger { level } => Shape::Menger { level },
+        ShapeSpec::Boxes { boxes } => Shape::Boxes {
+            boxes: boxes
+                .iter()
+                .map(|b| VoxelBox {
+                    min: b.min,
+                    max: b.max,
+                })
+                .collect(),
+        },
+    };
+    shape
+        .validate(rest.depth)
+        .map_err(|e| Error::invalid(at.clone(), e.to_string()))?;
+    let lod = match rest.lod {
+        Some(l) => {
+            if !(l.orig_size >= 0.0
+                && l.dir_size >= 0.0
+                && l.orig_size.is_finite()
+                && l.dir_size.is_finite())
+            {
+                return Err(Error::invalid(
+                    format!("{at} key `lod`"),
+                    "orig_size and dir_size must be finite and >= 0",
+                ));
+            }
+            Some(Lod {
+                orig_size: l.orig_size,
+                dir_size: l.dir_size,
+            })
+        }
+        None => None,
+    };
+    let max_iter = rest.max_iter.unwrap_or(default_max_iter(rest.depth));
+    if max_iter == 0 {
+        return Err(Error::invalid(
+            format!("{at} key `max_iter`"),
+            "must be at least 1",
+        ));
+    }
+    view.build()?;
+    Ok(VoxelScene {
+        view,
+        shape,
+        depth: rest.depth,
+        lod,
+        max_iter,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn doc(text: &str) -> SceneDoc {
+        SceneDoc {
+            path: "t.yaml".into(),
+            value: serde_yaml::from_str(text).unwrap(),
+        }
+    }
+
+    const SPHERE: &str = "renderer: voxels\nshape: {type: sphere, radius: 0.8}\ndepth: 8\n\
+        camera: {type: pinhole, position: [2.0, 1.5, 2.5], target: [0, 0, 0], fov_y: 45}\nwidth: 512\nheight: 512\n";
+
+    #[test]
+    fn sphere_scene_parses_and_bad_keys_are_named() {
+        let s = parse(&doc(SPHERE)).unwrap();
+        assert_eq!((s.depth, s.view.width), (8, 512));
+        assert_eq!(s.shape, Shape::Sphere { radius: 0.8 });
+        let e = parse(&doc(&SPHERE.replace("depth: 8", "depth: 23")))
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("t.yaml") && e.contains("depth"), "{e}");
+        let e = parse(&doc(&format!("{SPHERE}colour: 1\n")))
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("colour"), "{e}");
+        let e = parse(&doc(&SPHERE.replace("radius: 0.8", "level: 3")))
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("shape"), "{e}");
+    }
+}
