@@ -451,6 +451,8 @@ struct Ctx<'a, F> {
     rays: &'a Rays<F>,
     up: &'a Upstream<F>,
     pose: Pose<F>,
+    /// Density and colour grids share shape, box and OOB policy.
+    shared_cell: bool,
     bmin: [F; 3],
     bmax: [F; 3],
     near: F,
@@ -544,6 +546,10 @@ fn replay_unfused<F: Real>(
 #[derive(Clone, Copy, Debug)]
 struct Emit<F> {
     x: [F; 3],
+    /// Trilinear cells of the density and colour grids (computed once per
+    /// sample, shared when the grids have the same geometry).
+    cs: Option<Cell<F>>,
+    cc: Option<Cell<F>>,
     dsigma: F,
     dcolor: [F; 3],
 }
@@ -568,8 +574,40 @@ fn ray_grads<F: Real>(
     backward_ray(recs, log_tn, cx.m.background, g, gd, go, |i, sg| {
         let rc = &recs[i];
         let x = [o[0] + rc.t * d[0], o[1] + rc.t * d[1], o[2] + rc.t * d[2]];
-        let gs = sigma_grad(cx.field, x);
-        let gc = color_grad(cx.color, x, sg.dcolor);
+        let cs = match cx.field {
+            Field::Grid(g) => cell_of(g, x),
+            _ => None,
+        };
+        let (gs, cc) = match (cx.field, cx.color) {
+            (Field::Grid(g), ColorField::Grid(gcol)) if cx.shared_cell => {
+                let gs = cs.map_or([F::zero(); 3], |c| grid_grad::<F, 1>(g, &c, [F::one()]));
+                let gc = cs.map_or([F::zero(); 3], |c| grid_grad::<F, 3>(gcol, &c, sg.dcolor));
+                ((gs, gc), cs)
+            }
+            (Field::Grid(g), _) => {
+                let gs = cs.map_or([F::zero(); 3], |c| grid_grad::<F, 1>(g, &c, [F::one()]));
+                let cc = match cx.color {
+                    ColorField::Grid(gcol) => cell_of(gcol, x),
+                    ColorField::Constant(_) => None,
+                };
+                let gc = match (cx.color, cc) {
+                    (ColorField::Grid(gcol), Some(c)) => grid_grad::<F, 3>(gcol, &c, sg.dcolor),
+                    _ => [F::zero(); 3],
+                };
+                ((gs, gc), cc)
+            }
+            _ => {
+                let cc = match cx.color {
+                    ColorField::Grid(gcol) => cell_of(gcol, x),
+                    ColorField::Constant(_) => None,
+                };
+                (
+                    (sigma_grad(cx.field, x), color_grad(cx.color, x, sg.dcolor)),
+                    cc,
+                )
+            }
+        };
+        let (gs, gc) = gs;
         let gx = [0, 1, 2].map(|a| sg.dsigma * gs[a] + gc[a]);
         for a in 0..3 {
             go_k[a].add(gx[a]);
@@ -592,6 +630,8 @@ fn ray_grads<F: Real>(
             i,
             Emit {
                 x,
+                cs,
+                cc,
                 dsigma: sg.dsigma,
                 dcolor: sg.dcolor,
             },
@@ -652,11 +692,11 @@ fn cell_key<F>(g: &Grid<F>, base: [i64; 3]) -> u32 {
 
 fn push_rec<F: Real, const C: usize>(
     g: &Grid<F>,
-    x: [F; 3],
+    cell: Option<Cell<F>>,
     v: [F; C],
     out: &mut Vec<GridRec<F, C>>,
 ) {
-    if let Some(c) = cell_of(g, x) {
+    if let Some(c) = cell {
         out.push(GridRec {
             key: cell_key(g, c.base),
             f: c.f,
@@ -665,8 +705,13 @@ fn push_rec<F: Real, const C: usize>(
     }
 }
 
-fn scatter_dense<F: Real, const C: usize>(g: &Grid<F>, x: [F; 3], v: [F; C], out: &mut [F]) {
-    if let Some(c) = cell_of(g, x) {
+fn scatter_dense<F: Real, const C: usize>(
+    g: &Grid<F>,
+    cell: Option<Cell<F>>,
+    v: [F; C],
+    out: &mut [F],
+) {
+    if let Some(c) = cell {
         for d in 0..8 {
             if let Some(node) = corner_node(g, c.base, d) {
                 let w = corner_weight(c.f, d);
@@ -876,16 +921,16 @@ fn backward<F: Real>(
                 }
                 if let Some(g) = sig_grid {
                     if sorted {
-                        push_rec(g, e.x, [e.dsigma], &mut u.sig_recs);
+                        push_rec(g, e.cs, [e.dsigma], &mut u.sig_recs);
                     } else {
-                        scatter_dense(g, e.x, [e.dsigma], &mut u.sig_dense);
+                        scatter_dense(g, e.cs, [e.dsigma], &mut u.sig_dense);
                     }
                 }
                 if let Some(g) = col_grid {
                     if sorted {
-                        push_rec(g, e.x, e.dcolor, &mut u.col_recs);
+                        push_rec(g, e.cc, e.dcolor, &mut u.col_recs);
                     } else {
-                        scatter_dense(g, e.x, e.dcolor, &mut u.col_dense);
+                        scatter_dense(g, e.cc, e.dcolor, &mut u.col_dense);
                     }
                 }
                 if per_sample {
@@ -1122,6 +1167,14 @@ pub fn f_diff<F: Real>(
         rays,
         up,
         pose: Pose::of(cam),
+        shared_cell: match (&field, &color) {
+            (Field::Grid(a), ColorField::Grid(b)) => {
+                (a.nx, a.ny, a.nz, a.oob) == (b.nx, b.ny, b.nz, b.oob)
+                    && a.bmin == b.bmin
+                    && a.scale == b.scale
+            }
+            _ => false,
+        },
         bmin: gen.aabb.min.map(F::of),
         bmax: gen.aabb.max.map(F::of),
         near: F::of(gen.near),
