@@ -126,12 +126,12 @@ impl<F: Real> RayAcc<F> {
         let tau = sigma * dt;
         let alpha = alpha_of(tau);
         let w = tk * alpha;
-        for ch in 0..3 {
-            kahan_add(&mut self.rgb[ch], &mut self.rgb_c[ch], w * c[ch]);
+        for ((sum, comp), ci) in self.rgb.iter_mut().zip(self.rgb_c.iter_mut()).zip(c) {
+            kahan_add(sum, comp, w * ci);
         }
         kahan_add(&mut self.depth, &mut self.depth_c, w * t);
         kahan_add(&mut self.log_t, &mut self.log_c, -tau);
-        self.trans = self.trans * (F::one() - alpha);
+        self.trans *= F::one() - alpha;
         self.n += 1;
         if alpha == F::one() {
             self.saturated += 1;

@@ -211,18 +211,11 @@ pub fn render_prepared<F: Real>(
         Chain::Unfused => {
             let t = Instant::now();
             let rays = f_ray::<F>(cam, gen, budget)?;
-            tm.ray = t.elapsed().as_secs_f64();
-            let t = Instant::now();
-            let s = f_samp(&rays, &prep.medium, &m, occ, budget)?;
-            tm.samp = t.elapsed().as_secs_f64();
-            budget.check(
-                "f_int buffers",
-                bytes_for(s.len() as u64, Integrated::<F>::BYTES_PER_SAMPLE),
-            )?;
-            let t = Instant::now();
-            let it = f_int(&s, &m);
-            tm.int = t.elapsed().as_secs_f64();
-            (it.rays.clone(), rays.pixel, s.skipped, Some(s), Some(it))
+            let ray_s = t.elapsed().as_secs_f64();
+            let mut r = render_rays(&rays, gen, prep, compose, budget)?;
+            r.timings.ray = ray_s;
+            r.timings.total = t_all.elapsed().as_secs_f64();
+            return Ok(r);
         }
     };
     let t = Instant::now();
@@ -235,6 +228,52 @@ pub fn render_prepared<F: Real>(
         timings: tm,
         samples,
         integrated,
+    })
+}
+
+/// The unfused chain on given rays (camera rays, or rays replayed from a
+/// `--dump-failing` file): `f_samp` -> `f_int` -> `f_img` into the region of
+/// `gen` (ray pixel ids index the full `gen.width`-wide image).
+pub fn render_rays<F: Real>(
+    rays: &crate::rays::Rays<F>,
+    gen: &RayGen,
+    prep: &Prepared<F>,
+    compose: Compose,
+    budget: &MemBudget,
+) -> Result<Render<F>> {
+    let t_all = Instant::now();
+    let m = prep.march;
+    let roi = gen.region();
+    let mut tm = Timings::default();
+    let t = Instant::now();
+    let s = f_samp(rays, &prep.medium, &m, prep.occ.as_ref(), budget)?;
+    tm.samp = t.elapsed().as_secs_f64();
+    budget.check(
+        "f_int buffers",
+        bytes_for(s.len() as u64, Integrated::<F>::BYTES_PER_SAMPLE),
+    )?;
+    let t = Instant::now();
+    let it = f_int(&s, &m);
+    tm.int = t.elapsed().as_secs_f64();
+    let t = Instant::now();
+    let region = (roi.x, roi.y, roi.width, roi.height);
+    let image = f_img(
+        &it.rays,
+        &rays.pixel,
+        gen.width,
+        region,
+        m.background,
+        compose,
+    )?;
+    tm.img = t.elapsed().as_secs_f64();
+    tm.total = t_all.elapsed().as_secs_f64();
+    let counters = Counters::of(&it.rays, s.skipped);
+    Ok(Render {
+        image,
+        counters,
+        timings: tm,
+        samples: Some(s),
+        integrated: Some(it),
     })
 }
 

@@ -166,7 +166,7 @@ pub fn walk_lattice<F: Real>(
     occ: Option<&Occupancy<F>>,
     mut each: impl FnMut(u32, F, F, [F; 3]) -> bool,
 ) -> (u8, u64) {
-    if !(t1 > t0) {
+    if t1 <= t0 {
         return (0, 0);
     }
     let mut skipped = 0;

@@ -24,7 +24,7 @@ mod gpu;
 use super::{BackendKind, OpCtx, OpEntry};
 use crate::camera::Camera;
 use crate::error::{Error, Result};
-use crate::rays::{f_ray, RayGen};
+use crate::rays::{f_ray, RayGen, Rays};
 use crate::real::{Precision, Real};
 use crate::rng::rand_f64;
 use crate::scene::volume::FieldSpec;
@@ -32,7 +32,7 @@ use crate::tensor::{Outputs, Tensor};
 use crate::volume::compose::{Compose, Image};
 use crate::volume::field::{Analytic, ColorDesc, FieldDesc, GridDesc, Oob};
 use crate::volume::sample::{Sampling, TransPath};
-use crate::volume::{prepare, render, render_prepared, Chain, Render, VolumeParams};
+use crate::volume::{prepare, render, render_prepared, render_rays, Chain, Render, VolumeParams};
 
 const RENDER_PARAMS: &[&str] = &["compose"];
 
@@ -150,9 +150,21 @@ fn render_outputs<F: Real>(r: &Render<F>, out: &mut Outputs) -> Result<()> {
 
 fn run_chain<F: Real>(ctx: &OpCtx, chain: Chain, buffers: bool) -> Result<Outputs> {
     let (cam, gen, p, _) = load(ctx)?;
-    let r = render::<F>(&cam, &gen, &p, chain, compose_param(ctx)?, &ctx.budget)?;
+    let compose = compose_param(ctx)?;
+    let r = match ctx.rays {
+        // `render --rays FILE`: replay dumped rays through the unfused chain.
+        Some(t) => {
+            let rays = Rays::<F>::from_tensor(t, "--rays")?;
+            let prep = prepare::<F>(&p, &gen.aabb, &ctx.budget)?;
+            render_rays(&rays, &gen, &prep, compose, &ctx.budget)?
+        }
+        None => render::<F>(&cam, &gen, &p, chain, compose, &ctx.budget)?,
+    };
     let mut out = Outputs::default();
     render_outputs(&r, &mut out)?;
+    if ctx.dump && ctx.rays.is_none() {
+        out.tensor("rays", f_ray::<F>(&cam, &gen, &ctx.budget)?.to_tensor());
+    }
     if let (true, Some(s), Some(it)) = (buffers, &r.samples, &r.integrated) {
         let m = [s.len()];
         out.tensor(
@@ -341,9 +353,21 @@ fn ref_color(c: &ColorDesc, x: [f64; 3]) -> [f64; 3] {
 
 fn op_reference(ctx: &OpCtx) -> Result<Outputs> {
     let (cam, gen, p, _) = load(ctx)?;
-    let rays = f_ray::<f64>(&cam, &gen, &ctx.budget)?;
+    let rays = match ctx.rays {
+        Some(t) => Rays::<f64>::from_tensor(t, "--rays")?,
+        None => f_ray::<f64>(&cam, &gen, &ctx.budget)?,
+    };
     let roi = gen.region();
     let n = rays.len();
+    if n != roi.width as usize * roi.height as usize {
+        return Err(Error::invalid(
+            "--rays",
+            format!(
+                "{n} rays for a {}x{} region: the reference needs one ray per pixel",
+                roi.width, roi.height
+            ),
+        ));
+    }
     let (mut rgb, mut trans, mut logt, mut depth, mut opac, mut ns, mut hit) = (
         vec![[0.0; 3]; n],
         vec![0.0; n],
