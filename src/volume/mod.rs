@@ -13,6 +13,7 @@
 //! [`render`] chains them (fused or unfused) for a typed [`VolumeParams`].
 
 pub mod compose;
+pub mod diff;
 pub mod field;
 pub mod fused;
 pub mod gpu;

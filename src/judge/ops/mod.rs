@@ -13,6 +13,7 @@ mod rays;
 mod selftest;
 mod transport;
 mod volume;
+mod volume_diff;
 mod voxels;
 
 use std::path::{Path, PathBuf};
@@ -129,6 +130,7 @@ pub fn table() -> impl Iterator<Item = &'static OpEntry> {
     [
         rays::OPS,
         volume::OPS,
+        volume_diff::OPS,
         pathtrace::OPS,
         transport::OPS,
         voxels::OPS,

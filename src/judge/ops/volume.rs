@@ -39,9 +39,9 @@ const RENDER_PARAMS: &[&str] = &["compose"];
 pub const OPS: &[OpEntry] = &[
     OpEntry {
         name: "volume.render",
-        doc: "SCENES.md outputs of a volume scene (fused chain): rgb, trans, logtrans, depth, opacity, nsamples, hit",
-        params: RENDER_PARAMS,
-        run: op_forward,
+        doc: "SCENES.md outputs of a volume scene (fused chain): rgb, trans, logtrans, depth, opacity, nsamples, hit; with params.grad_from also dsigma, dcolor, dcam",
+        params: &["compose", "grad_from"],
+        run: op_render,
     },
     OpEntry {
         name: "volume.forward",
@@ -192,6 +192,14 @@ fn op_forward(ctx: &OpCtx) -> Result<Outputs> {
         Precision::F32 => run_chain::<f32>(ctx, Chain::Fused, false),
         Precision::F64 => run_chain::<f64>(ctx, Chain::Fused, false),
     }
+}
+
+/// `volume.render`: the forward outputs, plus gradients when
+/// `params.grad_from` names dL/d rgb (issue 4, `ops/volume_diff.rs`).
+fn op_render(ctx: &OpCtx) -> Result<Outputs> {
+    let mut out = op_forward(ctx)?;
+    super::volume_diff::render_grads(ctx, &mut out)?;
+    Ok(out)
 }
 
 fn op_unfused(ctx: &OpCtx) -> Result<Outputs> {
