@@ -222,9 +222,15 @@ pub enum ChildEnd {
 /// after `limit` seconds.
 pub fn run_child(args: &[String], limit: f64, log_path: &Path, result_path: &Path) -> ChildEnd {
     let _ = std::fs::remove_file(result_path);
-    let exe = match std::env::current_exe() {
-        Ok(e) => e,
-        Err(e) => return ChildEnd::Failed(format!("cannot find the hpjudge executable: {e}")),
+    // /proc/self/exe stays valid when the binary is rebuilt during a run.
+    let proc_exe = Path::new("/proc/self/exe");
+    let exe = if proc_exe.exists() {
+        proc_exe.to_path_buf()
+    } else {
+        match std::env::current_exe() {
+            Ok(e) => e,
+            Err(e) => return ChildEnd::Failed(format!("cannot find the hpjudge executable: {e}")),
+        }
     };
     let log = match std::fs::File::create(log_path) {
         Ok(f) => f,
