@@ -149,6 +149,22 @@ impl Camera {
         }
     }
 
+    /// The same camera with another C2W (a moved pose).
+    pub fn with_c2w(&self, c2w: Mat34) -> Camera {
+        match self {
+            Camera::Pinhole { k, .. } => Camera::Pinhole { k: *k, c2w },
+            Camera::Orthographic {
+                half_width,
+                half_height,
+                ..
+            } => Camera::Orthographic {
+                c2w,
+                half_width: *half_width,
+                half_height: *half_height,
+            },
+        }
+    }
+
     /// Checks that every number is finite and the intrinsics are usable.
     pub fn validate(&self) -> Result<()> {
         if self.c2w().iter().flatten().any(|v| !v.is_finite()) {

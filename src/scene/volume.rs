@@ -201,7 +201,8 @@ pub fn parse(doc: &SceneDoc) -> Result<VolumeScene> {
     Ok(VolumeScene { view, spec })
 }
 
-fn analytic(spec: &FieldSpec, at: &str) -> Result<Analytic> {
+/// The analytic field a spec names (a grid spec is an error).
+pub fn analytic(spec: &FieldSpec, at: &str) -> Result<Analytic> {
     Ok(match spec {
         FieldSpec::Constant { s } => Analytic::Constant { s: *s },
         FieldSpec::Slabs {

@@ -1480,18 +1480,7 @@ mod tests {
             }
             out[i][3] = m[i][3] + (0..3).map(|l| m[i][l] * xi[l]).sum::<f64>();
         }
-        match c {
-            Camera::Pinhole { k, .. } => Camera::Pinhole { k: *k, c2w: out },
-            Camera::Orthographic {
-                half_width,
-                half_height,
-                ..
-            } => Camera::Orthographic {
-                c2w: out,
-                half_width: *half_width,
-                half_height: *half_height,
-            },
-        }
+        c.with_c2w(out)
     }
 
     #[test]

@@ -569,35 +569,7 @@ fn continuum_field(spec: &FieldSpec, at: &str) -> Result<Analytic> {
         }
         other => other,
     };
-    Ok(match f {
-        FieldSpec::Constant { s } => Analytic::Constant { s: *s },
-        FieldSpec::Slabs {
-            axis,
-            breaks,
-            sigma,
-        } => Analytic::Slabs {
-            axis: *axis as usize,
-            breaks: breaks.clone(),
-            sigma: sigma.clone(),
-        },
-        FieldSpec::Gaussian {
-            amplitude,
-            mean,
-            std,
-        } => Analytic::Gaussian {
-            amplitude: *amplitude,
-            mean: *mean,
-            std: *std,
-        },
-        FieldSpec::Shell { centre, r0, r1, s } => Analytic::Shell {
-            centre: *centre,
-            r0: *r0,
-            r1: *r1,
-            s: *s,
-        },
-        FieldSpec::Linear { a, g } => Analytic::Linear { a: *a, g: *g },
-        FieldSpec::Grid { .. } => return Err(Error::invalid(at, "a grid sampled from a grid")),
-    })
+    crate::scene::volume::analytic(f, at)
 }
 
 /// Closed-form `(tau, hit)` per pixel of the scene's region, f64 rays.

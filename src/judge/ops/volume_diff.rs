@@ -428,18 +428,7 @@ pub(crate) fn perturb_pose(cam: &Camera, q: usize, h: f64) -> Camera {
         }
         out[i][3] = m[i][3] + (0..3).map(|l| m[i][l] * rho[l]).sum::<f64>();
     }
-    match cam {
-        Camera::Pinhole { k, .. } => Camera::Pinhole { k: *k, c2w: out },
-        Camera::Orthographic {
-            half_width,
-            half_height,
-            ..
-        } => Camera::Orthographic {
-            c2w: out,
-            half_width: *half_width,
-            half_height: *half_height,
-        },
-    }
+    cam.with_c2w(out)
 }
 
 fn op_grad_fd(ctx: &OpCtx) -> Result<Outputs> {
