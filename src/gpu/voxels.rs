@@ -115,7 +115,7 @@ fn batch_rays(ctx: &GpuContext) -> u64 {
 impl<'c> GpuOctree<'c> {
     /// Uploads `nodes` (the layout of `src/voxels/octree.rs`) of a depth-`depth` tree.
     pub fn new(ctx: &'c GpuContext, nodes: &[u32], depth: u32) -> Result<GpuOctree<'c>> {
-        if nodes.len() < 2 || nodes.len() % 2 != 0 || !(1..=22).contains(&depth) {
+        if nodes.len() < 2 || !nodes.len().is_multiple_of(2) || !(1..=22).contains(&depth) {
             return Err(Error::invalid(
                 "gpu voxel octree",
                 format!(
@@ -149,7 +149,10 @@ impl<'c> GpuOctree<'c> {
         if !(p.near.is_finite() && p.far.is_finite() && p.near <= p.far) {
             return Err(Error::invalid(
                 "gpu voxel cast",
-                format!("near {} and far {} must be finite, near <= far", p.near, p.far),
+                format!(
+                    "near {} and far {} must be finite, near <= far",
+                    p.near, p.far
+                ),
             ));
         }
         let (lod_on, (lod_orig, lod_dir)) = p.lod.map_or((0, (0.0, 0.0)), |l| (1, l));

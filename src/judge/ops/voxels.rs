@@ -81,7 +81,11 @@ pub(super) fn from64<F: Real>(rays: Vec<([f64; 3], [f64; 3])>) -> (Vec<[F; 3]>, 
         .unzip()
 }
 
-pub(super) fn camera_batch<F: Real>(ctx: &OpCtx, sc: &VoxelScene, size: Option<u32>) -> Result<Batch<F>> {
+pub(super) fn camera_batch<F: Real>(
+    ctx: &OpCtx,
+    sc: &VoxelScene,
+    size: Option<u32>,
+) -> Result<Batch<F>> {
     let (cam, mut gen): (_, RayGen) = sc.view.build()?;
     let cam = match size {
         Some(s) => {

@@ -24,8 +24,8 @@ use crate::budget::bytes_for;
 use crate::error::{Error, Result};
 use crate::gpu::voxels::{GpuCast, GpuOctree};
 use crate::gpu::GpuContext;
-use crate::real::Precision;
 use crate::rays::Rays;
+use crate::real::Precision;
 use crate::scene::voxels::VoxelScene;
 use crate::tensor::{Outputs, Tensor};
 use crate::voxels::cast::CastParams;
@@ -143,7 +143,10 @@ pub fn render_gpu(ctx: &OpCtx, sc: &VoxelScene, tree: &Octree) -> Result<Outputs
         .metric("wall_s", wall)
         .metric("mrays_per_s", n as f64 / s.max(1e-12) / 1e6);
     out.counter("rays", n)
-        .counter("hits", r.cast.hits.iter().filter(|h| h.hit()).count() as u64)
+        .counter(
+            "hits",
+            r.cast.hits.iter().filter(|h| h.hit()).count() as u64,
+        )
         .counter("kernel_max_iter", r.cast.max_iter as u64);
     put_hits(
         &mut out,
@@ -239,7 +242,10 @@ fn gpu_parity(ctx: &OpCtx) -> Result<Outputs> {
     out.tensor("identical_frac", Tensor::scalar(identical));
     let not_excused: Vec<u8> = excused.iter().map(|&x| 1 - x).collect();
     out.tensor("excused", Tensor::from_shape_vec(&r.shape, excused)?);
-    out.tensor("not_excused", Tensor::from_shape_vec(&r.shape, not_excused)?);
+    out.tensor(
+        "not_excused",
+        Tensor::from_shape_vec(&r.shape, not_excused)?,
+    );
     if ctx.dump {
         let rays = Rays {
             o: r.o.clone(),
@@ -289,7 +295,8 @@ fn gpu_bench(ctx: &OpCtx) -> Result<Outputs> {
     let upload_s = t0.elapsed().as_secs_f64();
     let threads = rayon::current_num_threads() as f64;
     let mut out = Outputs::default();
-    out.metric("threads", threads).metric("gpu_upload_s", upload_s);
+    out.metric("threads", threads)
+        .metric("gpu_upload_s", upload_s);
     build_metrics(&mut out, &tree);
 
     let coh: Batch<f32> = camera_batch(ctx, &sc, Some(size))?;
@@ -307,7 +314,11 @@ fn gpu_bench(ctx: &OpCtx) -> Result<Outputs> {
         .map(|(o, d)| [o[0], o[1], o[2], d[0], d[1], d[2]])
         .collect();
     // Warm-up: the first dispatch of each entry compiles it.
-    g.cast_rays(&packed[..packed.len().min(64)], &gpu_params(&p_inc), &ctx.budget)?;
+    g.cast_rays(
+        &packed[..packed.len().min(64)],
+        &gpu_params(&p_inc),
+        &ctx.budget,
+    )?;
     let mut warm = gen.clone();
     warm.roi = Some(crate::rays::Roi {
         x: 0,
@@ -317,14 +328,17 @@ fn gpu_bench(ctx: &OpCtx) -> Result<Outputs> {
     });
     g.cast_camera(&cam, &warm, &gpu_params(&p_coh), false, &ctx.budget)?;
 
-    let runs: [(&str, &[[f32; 3]], &[[f32; 3]], CastParams); 2] = [
-        ("coherent", &coh.o, &coh.d, p_coh),
-        ("incoherent", &io, &id, p_inc),
+    let runs = [
+        ("coherent", &coh.o[..], &coh.d[..], p_coh),
+        ("incoherent", &io[..], &id[..], p_inc),
     ];
     for (name, o, d, p) in runs {
         let (h, wall, cpu) = timed(|| cast_all::<f32>(&tree, o, d, &p));
         let n = o.len() as f64;
-        out.metric(&format!("cpu_{name}_mrays_per_s"), n / wall.max(1e-12) / 1e6);
+        out.metric(
+            &format!("cpu_{name}_mrays_per_s"),
+            n / wall.max(1e-12) / 1e6,
+        );
         out.metric(
             &format!("cpu_{name}_mrays_per_cpu_s"),
             if cpu > 0.0 { n / cpu / 1e6 } else { 0.0 },
