@@ -11,9 +11,14 @@
 //!   Yoshida 4, implicit midpoint), located events, the per-ray loop.
 //! - [`tasks`]: what a scene asks for (deflection lists, observer angle
 //!   scans, GRIN ray lists), fanned out over rays.
+//! - [`outputs`]: a traced task as named tensors.
+//! - [`referee`]: closed forms and quadratures in f64 that check the above
+//!   and share no code with them.
 
 pub mod grin;
 pub mod hamiltonian;
 pub mod integrate;
 pub mod metric;
+pub mod outputs;
+pub mod referee;
 pub mod tasks;
