@@ -15,7 +15,9 @@
 //!   scans, GRIN ray lists), fanned out over rays.
 
 pub mod grin;
+pub mod disk;
 pub mod hamiltonian;
+pub mod image;
 pub mod integrate;
 pub mod kerr;
 pub mod kerr_trace;

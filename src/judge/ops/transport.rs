@@ -134,6 +134,7 @@ fn run_task<F: Real>(
 ) -> Result<Vec<Vec<f64>>> {
     let t = Instant::now();
     let (rays, steps, q): (usize, Vec<i32>, Vec<Vec<f64>>) = match task {
+        Task::Curved(c) => super::transport_kerr::run_curved(c, opt, ctx, out)?,
         Task::Deflection(d) => {
             let r = deflection(d, opt, &ctx.budget, dump)?;
             polylines(&r.polylines, out)?;
@@ -380,6 +381,8 @@ fn ellip_k_agm(k: f64) -> f64 {
 fn finite_sweep(st: &SpacetimeSpec, b: f64, rs: f64, re: f64) -> (f64, bool, i32) {
     match *st {
         SpacetimeSpec::Minkowski => (PI - (b / rs).asin() - (b / re).asin(), false, 1),
+        // No Kerr quadrature here: Kerr cases compare with Schwarzschild runs.
+        SpacetimeSpec::Kerr { .. } => (f64::NAN, false, 1),
         SpacetimeSpec::Schwarzschild { mass } => match (
             schwarzschild_half_sweep(mass, b, 1.0 / rs),
             schwarzschild_half_sweep(mass, b, 1.0 / re),
