@@ -15,9 +15,11 @@
 //! | `deflection` | `spacetime`, `impact_parameters` (list, each > 0), `r_start`, `r_end` (default `r_start`), `horizon_eps` (0.01), `repeat` (1: the list traced this many times, for timing) |
 //! | `observer` | `spacetime` (with a horizon), `r_obs`, `angles_deg` (from the inward radial direction), `r_end` (1000), `horizon_eps` (0.01) |
 //! | `grin` | `medium`, `rays` (`[ox, oy, oz, dx, dy, dz]` each), `stop` |
+//! | `kerr_image` | `mass`, `a`, `observer` (`{type: distant, inclination_deg, r_obs: 1000}`, `{type: zamo / static, r, theta_deg, fov_deg}`), `width` + `height` or `rays` (`[alpha, beta]` list), `half_width` (8), `r_end` (1000), `disk` (`{r_out}`), `cell_deg` (10) |
+//! | `ellis_image` | `b0`, `l_cam`, `fov_deg`, `width`, `height`, `r_end` (1000), `cell_deg` (10) |
 //!
 //! `spacetime`: `{type: minkowski}`, `{type: schwarzschild, mass}`,
-//! `{type: ellis, b0}`. `medium`: `{type: luneburg, radius}`,
+//! `{type: ellis, b0}`, `{type: kerr, mass, a}` (deflection lists). `medium`: `{type: luneburg, radius}`,
 //! `{type: fish_eye, n0, radius}`, `{type: fibre, n0, alpha}`,
 //! `{type: sech, n0, alpha}`, `{type: grid, sample: MEDIUM, dims: [nx, ny, nz],
 //! aabb: {min, max}, outside: 1}` (the analytic medium sampled at the nodes,
@@ -41,9 +43,13 @@ use super::SceneDoc;
 use crate::error::{Error, Result};
 use crate::real::Real;
 use crate::transport::grin::{Grid, Medium};
+use crate::transport::image::{EllisImage, ImageTask, KerrImage, Observer, Pixels};
 use crate::transport::integrate::{Controller, Options, StepLaw, Tier};
+use crate::transport::kerr::Kerr;
+use crate::transport::kerr_trace::KerrDeflection;
+use crate::transport::observer::{DistantObserver, Frame, LocalObserver};
 use crate::transport::metric::Spacetime;
-use crate::transport::tasks::{Deflection, GrinRays, GrinStop, ObserverScan, Task};
+use crate::transport::tasks::{Curved, Deflection, GrinRays, GrinStop, ObserverScan, Task};
 
 fn one_u32() -> u32 {
     1
@@ -67,6 +73,8 @@ pub enum SpacetimeSpec {
     Minkowski,
     Schwarzschild { mass: f64 },
     Ellis { b0: f64 },
+    /// Kerr (deflection lists; `kerr_image` names mass and spin itself).
+    Kerr { mass: f64, a: f64 },
 }
 
 impl SpacetimeSpec {
@@ -79,6 +87,9 @@ impl SpacetimeSpec {
             SpacetimeSpec::Ellis { b0 } if b0 > 0.0 && b0.is_finite() => {
                 Ok(Spacetime::Ellis { b0: F::of(b0) })
             }
+            SpacetimeSpec::Kerr { .. } => Err(Error::NotSupported(
+                "kerr traces deflection lists and kerr_image tasks only".into(),
+            )),
             _ => Err(Error::invalid(
                 "task.spacetime",
                 format!("{self:?}: mass / b0 must be > 0 and finite"),
@@ -221,6 +232,8 @@ pub enum TaskSpec {
         rays: Vec<[f64; 6]>,
         stop: StopSpec,
     },
+    KerrImage(KerrImageSpec),
+    EllisImage(EllisImageSpec),
 }
 
 #[derive(Clone, Copy, Debug, Deserialize, PartialEq, Eq)]
@@ -303,6 +316,112 @@ impl IntegratorSpec {
                 "give exactly one of `h` (fixed step) and `eta` (step law)",
             )),
         }
+    }
+}
+
+fn eight() -> f64 {
+    8.0
+}
+fn ten() -> f64 {
+    10.0
+}
+
+/// Where a `kerr_image` looks from.
+#[derive(Clone, Copy, Debug, Deserialize, PartialEq)]
+#[serde(tag = "type", rename_all = "snake_case", deny_unknown_fields)]
+pub enum ObserverSpec {
+    /// SCENES.md distant observer (Bardeen's image plane).
+    Distant {
+        inclination_deg: f64,
+        #[serde(default = "thousand")]
+        r_obs: f64,
+    },
+    /// Pinhole camera of a zero-angular-momentum observer.
+    Zamo { r: f64, theta_deg: f64, fov_deg: f64 },
+    /// Pinhole camera of a static observer (outside the ergosphere).
+    Static { r: f64, theta_deg: f64, fov_deg: f64 },
+}
+
+/// `kerr_image`: see `transport::image`. Exactly one of `width`+`height`
+/// (a grid over `[-half_width, half_width]^2`) and `rays` (`[alpha, beta]`
+/// list, distant observer).
+#[derive(Clone, Debug, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct KerrImageSpec {
+    pub mass: f64,
+    pub a: f64,
+    pub observer: ObserverSpec,
+    #[serde(default)]
+    pub width: Option<usize>,
+    #[serde(default)]
+    pub height: Option<usize>,
+    #[serde(default)]
+    pub rays: Option<Vec<[f64; 2]>>,
+    #[serde(default = "eight")]
+    pub half_width: f64,
+    #[serde(default = "thousand")]
+    pub r_end: f64,
+    /// `{r_out}`: thin disk from the prograde ISCO to `r_out`.
+    #[serde(default)]
+    pub disk: Option<DiskSpec>,
+    #[serde(default = "ten")]
+    pub cell_deg: f64,
+}
+
+#[derive(Clone, Copy, Debug, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct DiskSpec {
+    pub r_out: f64,
+}
+
+/// `ellis_image`: static camera at `l_cam` looking at the throat.
+#[derive(Clone, Copy, Debug, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct EllisImageSpec {
+    pub b0: f64,
+    pub l_cam: f64,
+    pub fov_deg: f64,
+    pub width: usize,
+    pub height: usize,
+    #[serde(default = "thousand")]
+    pub r_end: f64,
+    #[serde(default = "ten")]
+    pub cell_deg: f64,
+}
+
+impl KerrImageSpec {
+    pub fn build(&self) -> Result<KerrImage> {
+        let local = |r: f64, th: f64, fov: f64, frame| {
+            Observer::Local(LocalObserver { r, theta: th.to_radians(), frame, fov_deg: fov })
+        };
+        let observer = match self.observer {
+            ObserverSpec::Distant { inclination_deg, r_obs } => Observer::Distant {
+                obs: DistantObserver { r_obs, theta_o: inclination_deg.to_radians() },
+                half: self.half_width,
+            },
+            ObserverSpec::Zamo { r, theta_deg, fov_deg } => local(r, theta_deg, fov_deg, Frame::Zamo),
+            ObserverSpec::Static { r, theta_deg, fov_deg } => {
+                local(r, theta_deg, fov_deg, Frame::Static)
+            }
+        };
+        let pixels = match (self.width, self.height, &self.rays) {
+            (Some(width), Some(height), None) => Pixels::Grid { width, height },
+            (None, None, Some(l)) => Pixels::List(l.clone()),
+            _ => {
+                return Err(Error::invalid(
+                    "task",
+                    "kerr_image needs exactly one of width + height (a grid) and rays (a list)",
+                ))
+            }
+        };
+        Ok(KerrImage {
+            kerr: Kerr { mass: self.mass, a: self.a },
+            observer,
+            pixels,
+            r_end: self.r_end,
+            disk_r_out: self.disk.map(|d| d.r_out),
+            cell_deg: self.cell_deg,
+        })
     }
 }
 
@@ -418,6 +537,18 @@ impl TransportScene {
                     .filter(|&n| n <= 1 << 24);
                 let n =
                     n.ok_or_else(|| Error::invalid("task.repeat", "too many rays (over 2^24)"))?;
+                let impact: Vec<f64> = impact_parameters.iter().copied().cycle().take(n).collect();
+                if let SpacetimeSpec::Kerr { mass, a } = *spacetime {
+                    return Ok((
+                        Task::Curved(Curved::KerrDeflection(KerrDeflection {
+                            kerr: Kerr { mass, a },
+                            impact,
+                            r_start: *r_start,
+                            r_end: r_end.unwrap_or(*r_start),
+                        })),
+                        opt,
+                    ));
+                }
                 Task::Deflection(Deflection {
                     spacetime: spacetime.build()?,
                     impact: impact_parameters.iter().copied().cycle().take(n).collect(),
@@ -451,6 +582,16 @@ impl TransportScene {
                     StopSpec::Steps { n } => GrinStop::Steps { n },
                 },
             }),
+            TaskSpec::KerrImage(k) => Task::Curved(Curved::Image(ImageTask::Kerr(k.build()?))),
+            TaskSpec::EllisImage(e) => Task::Curved(Curved::Image(ImageTask::Ellis(EllisImage {
+                b0: e.b0,
+                l_cam: e.l_cam,
+                fov_deg: e.fov_deg,
+                width: e.width,
+                height: e.height,
+                r_end: e.r_end,
+                cell_deg: e.cell_deg,
+            }))),
         };
         Ok((task, opt))
     }

@@ -140,6 +140,9 @@ pub enum EventKind<F> {
     /// `g = (x - point) . p` with `x = y[0..3]`, `p = y[3..6]` (GRIN
     /// states): rising at a local minimum of the distance to `point`.
     Approach { point: [F; 3] },
+    /// `g = r - value` with `r` the Boyer–Lindquist radius of the
+    /// Kerr–Schild point `y[1..4]` ([`super::kerr::ks_radius`], spin `a`).
+    KsRadius { a: F, value: F },
 }
 
 /// A stop condition: `g` changes sign from negative to non-negative
@@ -164,6 +167,7 @@ impl<F: Real> Event<F> {
             EventKind::Approach { point } => {
                 (y[0] - point[0]) * y[3] + (y[1] - point[1]) * y[4] + (y[2] - point[2]) * y[5]
             }
+            EventKind::KsRadius { a, value } => super::kerr::ks_radius(a, y[1], y[2], y[3]) - value,
         }
     }
 

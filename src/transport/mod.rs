@@ -7,6 +7,8 @@
 //!   sech, dense grid), `H = (|p|^2 - n^2) / 2`.
 //! - [`metric`]: spacetimes (Minkowski, Schwarzschild, Ellis wormhole),
 //!   `H = g^{mu nu} p_mu p_nu / 2`.
+//! - [`kerr`]: Kerr in Kerr–Schild Cartesian coordinates, Boyer–Lindquist
+//!   conversions and constants of motion; [`referee_kerr`]: its closed forms.
 //! - [`integrate`]: tiers (RK4, Dormand–Prince 5(4), Störmer–Verlet,
 //!   Yoshida 4, implicit midpoint), located events, the per-ray loop.
 //! - [`tasks`]: what a scene asks for (deflection lists, observer angle
@@ -16,9 +18,15 @@
 //!   and share no code with them.
 
 pub mod grin;
+pub mod disk;
 pub mod hamiltonian;
+pub mod image;
 pub mod integrate;
+pub mod kerr;
+pub mod kerr_trace;
 pub mod metric;
+pub mod observer;
 pub mod outputs;
 pub mod referee;
+pub mod referee_kerr;
 pub mod tasks;

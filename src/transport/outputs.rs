@@ -13,7 +13,9 @@ use crate::error::Result;
 use crate::real::Real;
 use crate::tensor::{Outputs, Tensor};
 use crate::transport::integrate::Options;
-use crate::transport::tasks::{deflection, grin_rays, observer_scan, GrinStop, Polyline, Task};
+use crate::transport::image::{render as render_image, ImageOut};
+use crate::transport::kerr_trace::kerr_deflection;
+use crate::transport::tasks::{deflection, grin_rays, observer_scan, Curved, GrinStop, Polyline, Task};
 
 pub fn vec1<F: Real>(v: Vec<F>) -> Result<Tensor> {
     let n = v.len();
@@ -83,6 +85,7 @@ pub fn run_task<F: Real>(
 ) -> Result<Vec<Vec<f64>>> {
     let t = Instant::now();
     let (rays, steps, q): (usize, Vec<i32>, Vec<Vec<f64>>) = match task {
+        Task::Curved(c) => run_curved(c, opt, budget, out)?,
         Task::Deflection(d) => {
             let r = deflection(d, opt, budget, dump)?;
             polylines(&r.polylines, out)?;
@@ -162,4 +165,81 @@ pub fn run_task<F: Real>(
     out.counter("rays", rays as u64).counter("steps", total);
     out.tensor("steps", i32s(steps)?);
     Ok(q)
+}
+
+/// A one-element tensor.
+pub fn t1(v: f64) -> Tensor {
+    Tensor::from_shape_vec(&[1], vec![v]).unwrap_or_else(|_| Tensor::scalar(v))
+}
+
+fn image_tensors<F: Real>(r: ImageOut<F>, out: &mut Outputs) -> Result<(usize, Vec<i32>, Vec<Vec<f64>>)> {
+    let sh = r.shape.clone();
+    let n: usize = sh.iter().product();
+    let mut sh3 = sh.clone();
+    sh3.push(3);
+    let q = r.captured.iter().map(|&c| vec![c as f64]).collect();
+    let max = |v: &[F]| v.iter().fold(0.0f64, |m, x| m.max(x.f64()));
+    out.metric("max_h_drift", max(&r.h_drift));
+    if !r.q_drift.is_empty() {
+        out.metric("max_e_drift", max(&r.e_drift))
+            .metric("max_l_drift", max(&r.l_drift))
+            .metric("max_q_drift", max(&r.q_drift));
+        out.tensor("e_drift", Tensor::real(&sh, r.e_drift)?);
+        out.tensor("l_drift", Tensor::real(&sh, r.l_drift)?);
+        out.tensor("q_drift", Tensor::real(&sh, r.q_drift)?);
+    }
+    out.tensor("escaped", Tensor::from_shape_vec(&sh, r.reason.iter().map(|&c| (c == 0) as u8).collect())?);
+    out.tensor("captured", Tensor::from_shape_vec(&sh, r.captured)?);
+    out.tensor("final_dir", Tensor::real(&sh3, r.final_dir.into_iter().flatten().collect())?);
+    out.tensor("h_drift", Tensor::real(&sh, r.h_drift)?);
+    out.tensor("err_est", Tensor::real(&sh, r.err_est)?);
+    out.tensor("reason", Tensor::from_shape_vec(&sh, r.reason)?);
+    if sh.len() == 2 {
+        out.tensor("image", Tensor::real(&sh3, r.image.into_iter().flatten().collect())?);
+    }
+    if let Some(ri) = r.disk_r_in {
+        let inner = r.disk_r.iter().filter(|v| v.f64() > 0.0).fold(f64::INFINITY, |m, v| m.min(v.f64()));
+        out.tensor("disk_inner_r", t1(if inner.is_finite() { inner } else { -1.0 }));
+        out.tensor("disk_r_in", t1(ri));
+        out.tensor("disk_hit", Tensor::from_shape_vec(&sh, r.disk_r.iter().map(|v| (v.f64() > 0.0) as u8).collect())?);
+        out.tensor("disk_r", Tensor::real(&sh, r.disk_r)?);
+        out.tensor("redshift", Tensor::real(&sh, r.redshift)?);
+    }
+    if !r.side.is_empty() {
+        out.tensor("side", Tensor::from_shape_vec(&sh, r.side)?);
+    }
+    Ok((n, r.steps, q))
+}
+
+/// `transport.render` for [`Curved`] tasks. Deflection lists: `deflection`,
+/// `captured`, `escaped`, `h_drift`, `err_est`, `reason`, `e_drift`,
+/// `l_drift`, `q_drift`. Images: the per-pixel tensors of
+/// `transport::image` (shape (H, W) or (n) for ray lists), `image` (H, W, 3,
+/// also as PNG), disk images `disk_r`, `disk_hit`, `redshift`,
+/// `disk_inner_r` (smallest disk radius hit, -1 if none) and `disk_r_in`
+/// (the ISCO the renderer used); metrics `max_h_drift`, `max_e_drift`,
+/// `max_l_drift`, `max_q_drift`. Returns rays, steps and per-ray values.
+pub fn run_curved<F: Real>(
+    c: &Curved,
+    opt: &Options<F>,
+    budget: &MemBudget,
+    out: &mut Outputs,
+) -> Result<(usize, Vec<i32>, Vec<Vec<f64>>)> {
+    match c {
+        Curved::KerrDeflection(d) => {
+            let r = kerr_deflection(d, opt)?;
+            let n = r.deflection.len();
+            let q = r.deflection.iter().map(|v| vec![v.f64()]).collect();
+            let col = |i: usize| Tensor::real(&[n], r.drift.iter().map(|d| d[i]).collect());
+            out.tensor("e_drift", col(0)?).tensor("l_drift", col(1)?).tensor("q_drift", col(2)?);
+            out.tensor("deflection", Tensor::real(&[n], r.deflection)?);
+            out.tensor("escaped", Tensor::from_shape_vec(&[n], r.captured.iter().map(|c| 1 - c).collect())?);
+            out.tensor("captured", Tensor::from_shape_vec(&[n], r.captured)?);
+            out.tensor("h_drift", Tensor::real(&[n], r.h_drift)?);
+            out.tensor("err_est", Tensor::real(&[n], r.err_est)?);
+            out.tensor("reason", Tensor::from_shape_vec(&[n], r.reason)?);
+            Ok((n, r.steps, q))
+        }
+        Curved::Image(t) => image_tensors(render_image(t, opt, budget)?, out),
+    }
 }

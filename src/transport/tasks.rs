@@ -24,6 +24,15 @@ pub enum Task<F> {
     Deflection(Deflection<F>),
     Observer(ObserverScan<F>),
     Grin(GrinRays<F>),
+    /// Kerr deflection lists and images ([`Curved`]).
+    Curved(Curved),
+}
+
+/// Tasks of the curved-spacetime renderers with f64 parameters (closed set).
+#[derive(Clone, Debug, PartialEq)]
+pub enum Curved {
+    KerrDeflection(super::kerr_trace::KerrDeflection),
+    Image(super::image::ImageTask),
 }
 
 /// Most points kept per dumped polyline.

@@ -23,6 +23,7 @@ mod pathtrace;
 mod rays;
 mod selftest;
 mod transport;
+mod transport_kerr;
 mod volume;
 mod volume_diff;
 mod voxels;
@@ -199,6 +200,7 @@ pub fn table() -> impl Iterator<Item = &'static OpEntry> {
         volume_diff::OPS,
         pathtrace::OPS,
         transport::OPS,
+        transport_kerr::OPS,
         voxels::OPS,
         voxels_gpu::OPS,
         selftest::OPS,

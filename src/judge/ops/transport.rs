@@ -96,12 +96,17 @@ fn render(ctx: &OpCtx) -> Result<Outputs> {
 // Independent references: `transport::referee`.
 
 /// The referee's description of a spacetime.
-fn closed_spacetime(st: &SpacetimeSpec) -> Spacetime {
-    match *st {
+fn closed_spacetime(st: &SpacetimeSpec) -> Result<Spacetime> {
+    Ok(match *st {
         SpacetimeSpec::Minkowski => Spacetime::Minkowski,
         SpacetimeSpec::Schwarzschild { mass } => Spacetime::Schwarzschild { mass },
         SpacetimeSpec::Ellis { b0 } => Spacetime::Ellis { b0 },
-    }
+        SpacetimeSpec::Kerr { .. } => {
+            return Err(Error::NotSupported(
+                "no Kerr deflection quadrature: Kerr lists are judged against Schwarzschild runs (a = 0) and their invariants".into(),
+            ))
+        }
+    })
 }
 
 fn deflection_list(s: &TransportScene) -> Result<(&SpacetimeSpec, Vec<f64>, f64, f64)> {
@@ -132,9 +137,10 @@ fn deflection_list(s: &TransportScene) -> Result<(&SpacetimeSpec, Vec<f64>, f64,
 fn deflection_finite(ctx: &OpCtx) -> Result<Outputs> {
     let s = scene(ctx)?;
     let (st, bs, rs, re) = deflection_list(&s)?;
+    let st = closed_spacetime(st)?;
     let (mut d, mut cap, mut side) = (vec![], vec![], vec![]);
     for &b in &bs {
-        let (sweep, c, sd) = finite_sweep(&closed_spacetime(st), b, rs, re);
+        let (sweep, c, sd) = finite_sweep(&st, b, rs, re);
         d.push(if c { 0.0 } else { sweep - PI });
         cap.push(c as u8);
         side.push(sd);
