@@ -177,11 +177,87 @@ fn max3<F: Real>(a: [F; 3]) -> F {
     fmax(fmax(a[0], a[1]), a[2])
 }
 
+/// How a traversal finds a node's children: the one difference between the
+/// octree ([`Relative`]) and the DAG ([`Absolute`]) casts, chosen at compile
+/// time so both run the same loop with the same float operations.
+pub trait Addressing {
+    /// Slot of child `c`'s descriptor, for the node at slot `parent` with
+    /// low word `desc`; `child_masks` is `desc` shifted so that bits 0..7
+    /// are the non-leaf bits of the children before `c` (in the mirrored
+    /// order the loop visits).
+    fn child(nodes: &[u32], parent: usize, desc: u32, child_masks: u32, c: u32) -> usize;
+    /// Attribute index of leaf child `c` of the node at `parent`, or
+    /// `u32::MAX` where the layout cannot tell (the DAG: see
+    /// [`super::dag::Dag::attr_index`]).
+    fn leaf_attr(nodes: &[u32], parent: usize, desc: u32, c: u32) -> u32;
+}
+
+/// ESVO octree addressing ([`super::octree`]): children at
+/// `parent + ptr + popcount(non-leaf bits before c)`, through a far-pointer
+/// slot when the far bit is set; the high word is the attribute base.
+pub struct Relative;
+
+/// DAG addressing ([`super::dag`]): the high word is the absolute slot of the
+/// node's 8-slot children block and child `c` sits at `high + c`.
+pub struct Absolute;
+
+impl Addressing for Relative {
+    #[inline(always)]
+    fn child(nodes: &[u32], parent: usize, desc: u32, child_masks: u32, _c: u32) -> usize {
+        let mut ofs = (desc >> 17) as usize;
+        if desc & 0x1_0000 != 0 {
+            ofs = nodes[2 * (parent + ofs)] as usize;
+        }
+        parent + ofs + (child_masks & 0x7F).count_ones() as usize
+    }
+    #[inline(always)]
+    fn leaf_attr(nodes: &[u32], parent: usize, desc: u32, c: u32) -> u32 {
+        let leafmask = (desc >> 8) & !desc & 0xFF;
+        nodes[2 * parent + 1] + (leafmask & ((1 << c) - 1)).count_ones()
+    }
+}
+
+impl Addressing for Absolute {
+    #[inline(always)]
+    fn child(nodes: &[u32], parent: usize, _desc: u32, _child_masks: u32, c: u32) -> usize {
+        nodes[2 * parent + 1] as usize + c as usize
+    }
+    #[inline(always)]
+    fn leaf_attr(_nodes: &[u32], _parent: usize, _desc: u32, _c: u32) -> u32 {
+        u32::MAX
+    }
+}
+
 /// Casts the ray `o + t d`, t in `[near, far]`, through the octree `nodes`
-/// (layout of [`super::octree`]) of depth `depth`. Per-axis loops index
-/// arrays as a WGSL kernel would.
-#[allow(clippy::needless_range_loop)]
+/// (layout of [`super::octree`]) of depth `depth`.
 pub fn cast<F: CastReal>(
+    nodes: &[u32],
+    depth: u32,
+    o: [F; 3],
+    d: [F; 3],
+    p: &CastParams,
+) -> CastHit<F> {
+    cast_with::<F, Relative>(nodes, depth, o, d, p)
+}
+
+/// The same cast through a DAG's `nodes` (layout of [`super::dag`]): the same
+/// loop as [`cast`], so `t`, voxel, normal, level and iterations are
+/// bit-identical; `attr` is `u32::MAX` (the DAG finds it by
+/// [`super::dag::Dag::attr_index`]).
+pub fn cast_dag<F: CastReal>(
+    nodes: &[u32],
+    depth: u32,
+    o: [F; 3],
+    d: [F; 3],
+    p: &CastParams,
+) -> CastHit<F> {
+    cast_with::<F, Absolute>(nodes, depth, o, d, p)
+}
+
+/// The Laine–Karras loop, generic over the child addressing `A`. Per-axis
+/// loops index arrays as a WGSL kernel would.
+#[allow(clippy::needless_range_loop)]
+pub fn cast_with<F: CastReal, A: Addressing>(
     nodes: &[u32],
     depth: u32,
     o: [F; 3],
@@ -278,12 +354,7 @@ pub fn cast<F: CastReal>(
                     stack_tmax[scale as usize] = t_max;
                 }
                 h = tc_max;
-                let mut ofs = (desc >> 17) as usize;
-                if desc & 0x1_0000 != 0 {
-                    ofs = nodes[2 * (parent + ofs)] as usize;
-                }
-                ofs += (child_masks & 0x7F).count_ones() as usize;
-                parent += ofs;
+                parent = A::child(nodes, parent, desc, child_masks, child_shift ^ 7);
                 idx = 0;
                 scale -= 1;
                 scale_exp2 = halfs;
@@ -351,10 +422,7 @@ pub fn cast<F: CastReal>(
     }
     let level = (S_MAX - scale) as u32;
     let attr = if leaf {
-        let c = (idx ^ octant) ^ 7;
-        let d = desc;
-        let leafmask = (d >> 8) & !d & 0xFF;
-        nodes[2 * parent + 1] + (leafmask & ((1 << c) - 1)).count_ones()
+        A::leaf_attr(nodes, parent, desc, (idx ^ octant) ^ 7)
     } else {
         u32::MAX
     };

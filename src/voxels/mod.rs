@@ -5,9 +5,11 @@
 //! 003; SCENES.md "Sparse voxels" fixes voxel indexing and outputs.
 
 pub mod cast;
+pub mod dag;
 pub mod octree;
 pub mod raysets;
 pub mod referee;
+pub mod referee_dag;
 pub mod render;
 pub mod shape;
 

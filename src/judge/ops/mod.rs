@@ -15,6 +15,7 @@ mod transport;
 mod volume;
 mod volume_diff;
 mod voxels;
+mod voxels_dag;
 
 use std::path::{Path, PathBuf};
 
@@ -134,6 +135,7 @@ pub fn table() -> impl Iterator<Item = &'static OpEntry> {
         pathtrace::OPS,
         transport::OPS,
         voxels::OPS,
+        voxels_dag::OPS,
         selftest::OPS,
     ]
     .into_iter()

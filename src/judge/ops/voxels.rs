@@ -3,7 +3,7 @@
 //!
 //! | op | what |
 //! | --- | --- |
-//! | `voxels.render` | build the octree, cast every ray: hit, t, leaf, normal, image, iters, leaf_key; build and cast metrics |
+//! | `voxels.render` | build the octree (and the DAG with `structure: dag`), cast every ray: hit, t, leaf, normal, image, iters, leaf_key; build and cast metrics |
 //! | `voxels.referee` | the exact f64 DDA over the scene predicate on the same rays, with tie flags |
 //! | `voxels.sphere_bounds` | analytic entry distances of the spheres r -+ half a voxel diagonal (sphere scenes) |
 //! | `voxels.bench` | Mrays/s of octree and referee, coherent and incoherent, build time, bytes per voxel |
@@ -27,9 +27,10 @@ use crate::real::{Precision, Real};
 use crate::scene::voxels::VoxelScene;
 use crate::tensor::{Outputs, Tensor};
 use crate::voxels::cast::{CastParams, CastReal};
+use crate::voxels::dag::{build_dag, Dag};
 use crate::voxels::octree::{build, Octree};
 use crate::voxels::raysets::{hard, incoherent, HARD_KINDS};
-use crate::voxels::render::{cast_all, referee_all, shade, VoxelHits};
+use crate::voxels::render::{cast_all, cast_all_dag, referee_all, shade, Structure, VoxelHits};
 use crate::voxels::shape::Shape;
 
 const RAY_PARAMS: &[&str] = &["rays", "count", "seed"];
@@ -232,7 +233,7 @@ fn put_hits<F: Real>(
     Ok(())
 }
 
-fn build_metrics(out: &mut Outputs, tree: &Octree) {
+pub(super) fn build_metrics(out: &mut Outputs, tree: &Octree) {
     let s = &tree.stats;
     out.metric("build_s", s.build_s)
         .metric("bytes_per_voxel", s.bytes_per_voxel())
@@ -251,7 +252,12 @@ fn build_metrics(out: &mut Outputs, tree: &Octree) {
     out.counter("leaves", s.leaves);
 }
 
-fn render_in<F: CastReal>(ctx: &OpCtx, sc: &VoxelScene, tree: &Octree) -> Result<Outputs> {
+fn render_in<F: CastReal>(
+    ctx: &OpCtx,
+    sc: &VoxelScene,
+    tree: &Octree,
+    dag: Option<&Dag>,
+) -> Result<Outputs> {
     let b = batch::<F>(ctx, sc)?;
     let n = b.o.len() as u64;
     ctx.budget.check(
@@ -265,9 +271,15 @@ fn render_in<F: CastReal>(ctx: &OpCtx, sc: &VoxelScene, tree: &Octree) -> Result
         max_iter: sc.max_iter,
     };
     let t0 = Instant::now();
-    let h = cast_all::<F>(tree, &b.o, &b.d, &p);
+    let h = match dag {
+        Some(g) => cast_all_dag::<F>(g, &b.o, &b.d, &p),
+        None => cast_all::<F>(tree, &b.o, &b.d, &p),
+    };
     let s = t0.elapsed().as_secs_f64();
     let mut out = Outputs::default();
+    if let Some(g) = dag {
+        super::voxels_dag::dag_metrics(&mut out, g);
+    }
     if ctx.dump {
         out.tensor("rays", dump_rays(&b)?);
     }
@@ -287,9 +299,13 @@ fn render(ctx: &OpCtx) -> Result<Outputs> {
     ctx.cpu_only()?;
     let sc = load(ctx)?;
     let tree = build(&sc.shape, sc.depth, &ctx.budget)?;
+    let dag = match sc.structure {
+        Structure::Octree => None,
+        Structure::Dag => Some(build_dag(&tree, &ctx.budget)?),
+    };
     match ctx.precision {
-        Precision::F32 => render_in::<f32>(ctx, &sc, &tree),
-        Precision::F64 => render_in::<f64>(ctx, &sc, &tree),
+        Precision::F32 => render_in::<f32>(ctx, &sc, &tree, dag.as_ref()),
+        Precision::F64 => render_in::<f64>(ctx, &sc, &tree, dag.as_ref()),
     }
 }
 
@@ -414,7 +430,7 @@ fn process_cpu_s() -> Option<f64> {
 }
 
 /// Runs `f`, returning its result, wall seconds and CPU seconds (0 when unknown).
-fn timed<R>(f: impl FnOnce() -> R) -> (R, f64, f64) {
+pub(super) fn timed<R>(f: impl FnOnce() -> R) -> (R, f64, f64) {
     let (c0, t0) = (process_cpu_s(), Instant::now());
     let r = f();
     let wall = t0.elapsed().as_secs_f64();
