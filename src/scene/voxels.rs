@@ -7,6 +7,7 @@
 //! | `depth` | octree depth d: 2^d voxels per axis over [-1, 1]^3, 1..=22 | required |
 //! | `lod` | `{orig_size, dir_size}`: LOD cut when `orig_size + t dir_size` >= voxel size (world units) | off |
 //! | `max_iter` | cast iteration cap per ray | max(2^16, 16 * 2^depth) |
+//! | `contours` | `true`: intersect each surface voxel's contour slab (sphere only; octree only); SCENES.md outputs are defined without | `false` |
 //! | `structure` | `octree` (ESVO, relative addressing) or `dag` (identical subtrees merged, absolute addressing; same outputs) | `octree` |
 //! | view keys | `camera`, `width`, `height`, `roi`, `near`, `far`, ... | see `scene/rays.rs` |
 
@@ -55,6 +56,8 @@ pub struct VoxelsRest {
     pub max_iter: Option<u32>,
     #[serde(default)]
     pub structure: Structure,
+    #[serde(default)]
+    pub contours: bool,
 }
 
 /// A parsed, validated voxel scene.
@@ -66,6 +69,7 @@ pub struct VoxelScene {
     pub lod: Option<Lod>,
     pub max_iter: u32,
     pub structure: Structure,
+    pub contours: bool,
 }
 
 /// Parses and validates a `renderer: voxels` scene.
@@ -114,6 +118,12 @@ pub fn parse(doc: &SceneDoc) -> Result<VoxelScene> {
             "must be at least 1",
         ));
     }
+    if rest.contours && rest.structure == Structure::Dag {
+        return Err(Error::invalid(
+            format!("{at} key `contours`"),
+            "contours are per-leaf data: use them with `structure: octree`",
+        ));
+    }
     view.build()?;
     Ok(VoxelScene {
         view,
@@ -122,6 +132,7 @@ pub fn parse(doc: &SceneDoc) -> Result<VoxelScene> {
         lod,
         max_iter,
         structure: rest.structure,
+        contours: rest.contours,
     })
 }
 

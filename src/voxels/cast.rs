@@ -26,6 +26,8 @@
 
 use crate::real::Real;
 
+use super::contour::slab_interval;
+
 /// Scale of the root's children + 1: f32's mantissa bits.
 pub const S_MAX: i32 = 23;
 
@@ -127,6 +129,8 @@ pub struct CastHit<F> {
     pub level: u32,
     /// Attribute index of the leaf, `u32::MAX` for an LOD cut at an inner node.
     pub attr: u32,
+    /// The contour whose slab gave `t` ([`super::contour`]), 0 for none.
+    pub contour: u32,
     pub iters: u32,
     pub capped: bool,
 }
@@ -141,6 +145,7 @@ impl<F: CastReal> CastHit<F> {
             normal: [0; 3],
             level: 0,
             attr: u32::MAX,
+            contour: 0,
             iters,
             capped,
         }
@@ -237,7 +242,23 @@ pub fn cast<F: CastReal>(
     d: [F; 3],
     p: &CastParams,
 ) -> CastHit<F> {
-    cast_with::<F, Relative>(nodes, depth, o, d, p)
+    cast_with::<F, Relative>(nodes, depth, o, d, p, None)
+}
+
+/// [`cast`] with contours (issue 14): `contours[attr]` is the contour of the
+/// finest-level leaf with attribute index `attr` (0: none). At such a leaf
+/// the ray's t interval inside the voxel is cut to the contour's slab; the
+/// voxel is hit at the cut interval's start, or passed when it is empty.
+/// `t` then never leaves the voxel's [entry, exit].
+pub fn cast_contours<F: CastReal>(
+    nodes: &[u32],
+    depth: u32,
+    o: [F; 3],
+    d: [F; 3],
+    p: &CastParams,
+    contours: &[u32],
+) -> CastHit<F> {
+    cast_with::<F, Relative>(nodes, depth, o, d, p, Some(contours))
 }
 
 /// The same cast through a DAG's `nodes` (layout of [`super::dag`]): the same
@@ -251,7 +272,7 @@ pub fn cast_dag<F: CastReal>(
     d: [F; 3],
     p: &CastParams,
 ) -> CastHit<F> {
-    cast_with::<F, Absolute>(nodes, depth, o, d, p)
+    cast_with::<F, Absolute>(nodes, depth, o, d, p, None)
 }
 
 /// The Laine–Karras loop, generic over the child addressing `A`. Per-axis
@@ -263,6 +284,7 @@ pub fn cast_with<F: CastReal, A: Addressing>(
     o: [F; 3],
     d: [F; 3],
     p: &CastParams,
+    contours: Option<&[u32]>,
 ) -> CastHit<F> {
     let one = F::one();
     let half = F::of(0.5);
@@ -320,6 +342,7 @@ pub fn cast_with<F: CastReal, A: Addressing>(
     }
     let mut iters = 0u32;
     let mut stop: Option<bool> = None; // Some(leaf?) when the loop stops at a voxel
+    let mut contour_hit: Option<(F, u32)> = None;
     while scale < S_MAX {
         iters += 1;
         if iters > p.max_iter {
@@ -343,11 +366,33 @@ pub fn cast_with<F: CastReal, A: Addressing>(
             let tv_max = fmin(t_max, tc_max);
             let halfs = scale_exp2 * half;
             let tcen = [0, 1, 2].map(|a| halfs * coef[a] + tc[a]);
-            if t_min <= tv_max {
-                if child_masks & 0x80 == 0 {
+            if t_min <= tv_max && child_masks & 0x80 == 0 {
+                // A leaf: the hit, unless its contour's slab misses the ray.
+                let slab = match contours {
+                    Some(cs) if S_MAX - scale == depth as i32 => {
+                        let at = A::leaf_attr(nodes, parent, desc, child_shift ^ 7) as usize;
+                        let v = cs.get(at).copied().unwrap_or(0);
+                        (v != 0).then(|| {
+                            let cen = [0, 1, 2].map(|a| {
+                                let lo = if octant >> a & 1 == 0 {
+                                    F::of(3.0) - scale_exp2 - pos[a]
+                                } else {
+                                    pos[a]
+                                };
+                                two * lo + scale_exp2 - F::of(3.0)
+                            });
+                            let (ta, tb) = slab_interval(v, cen, two * scale_exp2, o, d);
+                            (fmax(t_min, ta), fmin(tv_max, tb), v)
+                        })
+                    }
+                    _ => None,
+                };
+                if !matches!(slab, Some((a, b, _)) if a > b) {
+                    contour_hit = slab.map(|(a, _, v)| (a, v));
                     stop = Some(true);
                     break;
                 }
+            } else if t_min <= tv_max {
                 // PUSH
                 if tc_max < h {
                     stack_node[scale as usize] = parent as u32;
@@ -450,6 +495,7 @@ pub fn cast_with<F: CastReal, A: Addressing>(
         }
         _ => t_min,
     };
+    let t = contour_hit.map_or(t, |(tc, _)| tc);
     let hitp = [0, 1, 2].map(|a| o[a] + t * d[a]);
     let mut voxel = [0u32; 3];
     for a in 0..3 {
@@ -479,6 +525,7 @@ pub fn cast_with<F: CastReal, A: Addressing>(
         normal,
         level,
         attr,
+        contour: contour_hit.map_or(0, |(_, v)| v),
         iters,
         capped: false,
     }

@@ -5,6 +5,7 @@
 //! 003; SCENES.md "Sparse voxels" fixes voxel indexing and outputs.
 
 pub mod cast;
+pub mod contour;
 pub mod dag;
 pub mod octree;
 pub mod raysets;

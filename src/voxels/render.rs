@@ -12,7 +12,7 @@
 use crate::parallel::par_collect;
 use crate::real::Real;
 
-use super::cast::{cast, cast_dag, CastHit, CastParams, CastReal};
+use super::cast::{cast, cast_contours, cast_dag, CastHit, CastParams, CastReal};
 use super::dag::Dag;
 use super::octree::Octree;
 use super::referee::referee;
@@ -90,6 +90,22 @@ pub fn cast_all_dag<F: CastReal>(
     collect(par_collect("voxels.cast_dag", o.len(), |i| {
         cast_dag::<F>(&dag.nodes, dag.depth, o[i], d[i], p)
     }))
+}
+
+/// [`cast_all`] with contours (`contours[attr]`, 0 = none); also returns
+/// each ray's contour (0 when its t did not come from a slab).
+pub fn cast_all_contours<F: CastReal>(
+    tree: &Octree,
+    contours: &[u32],
+    o: &[[F; 3]],
+    d: &[[F; 3]],
+    p: &CastParams,
+) -> (VoxelHits<F>, Vec<u32>) {
+    let res = par_collect("voxels.cast_contours", o.len(), |i| {
+        cast_contours::<F>(&tree.nodes, tree.depth, o[i], d[i], p, contours)
+    });
+    let used = res.iter().map(|h| h.contour).collect();
+    (collect(res), used)
 }
 
 fn collect<F: CastReal>(res: Vec<CastHit<F>>) -> VoxelHits<F> {

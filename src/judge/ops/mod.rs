@@ -15,6 +15,7 @@ mod transport;
 mod volume;
 mod volume_diff;
 mod voxels;
+mod voxels_contour;
 mod voxels_dag;
 
 use std::path::{Path, PathBuf};
@@ -136,6 +137,7 @@ pub fn table() -> impl Iterator<Item = &'static OpEntry> {
         transport::OPS,
         voxels::OPS,
         voxels_dag::OPS,
+        voxels_contour::OPS,
         selftest::OPS,
     ]
     .into_iter()

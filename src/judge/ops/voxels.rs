@@ -30,7 +30,10 @@ use crate::voxels::cast::{CastParams, CastReal};
 use crate::voxels::dag::{build_dag, Dag};
 use crate::voxels::octree::{build, Octree};
 use crate::voxels::raysets::{hard, incoherent, HARD_KINDS};
-use crate::voxels::render::{cast_all, cast_all_dag, referee_all, shade, Structure, VoxelHits};
+use crate::voxels::contour::fit_all;
+use crate::voxels::render::{
+    cast_all, cast_all_contours, cast_all_dag, referee_all, shade, Structure, VoxelHits,
+};
 use crate::voxels::shape::Shape;
 
 const RAY_PARAMS: &[&str] = &["rays", "count", "seed"];
@@ -67,12 +70,12 @@ fn load(ctx: &OpCtx) -> Result<VoxelScene> {
 }
 
 /// A batch of rays in precision `F` and the shape of its per-ray tensors.
-struct Batch<F> {
-    o: Vec<[F; 3]>,
-    d: Vec<[F; 3]>,
-    shape: Vec<usize>,
-    near: f64,
-    far: f64,
+pub(super) struct Batch<F> {
+    pub(super) o: Vec<[F; 3]>,
+    pub(super) d: Vec<[F; 3]>,
+    pub(super) shape: Vec<usize>,
+    pub(super) near: f64,
+    pub(super) far: f64,
     kind: Option<Vec<i32>>,
 }
 
@@ -82,7 +85,7 @@ fn from64<F: Real>(rays: Vec<([f64; 3], [f64; 3])>) -> (Vec<[F; 3]>, Vec<[F; 3]>
         .unzip()
 }
 
-fn camera_batch<F: Real>(ctx: &OpCtx, sc: &VoxelScene, size: Option<u32>) -> Result<Batch<F>> {
+pub(super) fn camera_batch<F: Real>(ctx: &OpCtx, sc: &VoxelScene, size: Option<u32>) -> Result<Batch<F>> {
     let (cam, mut gen): (_, RayGen) = sc.view.build()?;
     let cam = match size {
         Some(s) => {
@@ -257,6 +260,7 @@ fn render_in<F: CastReal>(
     sc: &VoxelScene,
     tree: &Octree,
     dag: Option<&Dag>,
+    contours: Option<&[u32]>,
 ) -> Result<Outputs> {
     let b = batch::<F>(ctx, sc)?;
     let n = b.o.len() as u64;
@@ -271,9 +275,10 @@ fn render_in<F: CastReal>(
         max_iter: sc.max_iter,
     };
     let t0 = Instant::now();
-    let h = match dag {
-        Some(g) => cast_all_dag::<F>(g, &b.o, &b.d, &p),
-        None => cast_all::<F>(tree, &b.o, &b.d, &p),
+    let h = match (dag, contours) {
+        (Some(g), _) => cast_all_dag::<F>(g, &b.o, &b.d, &p),
+        (None, Some(cs)) => cast_all_contours::<F>(tree, cs, &b.o, &b.d, &p).0,
+        (None, None) => cast_all::<F>(tree, &b.o, &b.d, &p),
     };
     let s = t0.elapsed().as_secs_f64();
     let mut out = Outputs::default();
@@ -303,9 +308,15 @@ fn render(ctx: &OpCtx) -> Result<Outputs> {
         Structure::Octree => None,
         Structure::Dag => Some(build_dag(&tree, &ctx.budget)?),
     };
+    let contours = if sc.contours {
+        Some(fit_all(&sc.shape, &tree)?)
+    } else {
+        None
+    };
+    let (g, cs) = (dag.as_ref(), contours.as_deref());
     match ctx.precision {
-        Precision::F32 => render_in::<f32>(ctx, &sc, &tree, dag.as_ref()),
-        Precision::F64 => render_in::<f64>(ctx, &sc, &tree, dag.as_ref()),
+        Precision::F32 => render_in::<f32>(ctx, &sc, &tree, g, cs),
+        Precision::F64 => render_in::<f64>(ctx, &sc, &tree, g, cs),
     }
 }
 
@@ -356,7 +367,7 @@ fn referee_op(ctx: &OpCtx) -> Result<Outputs> {
 
 /// First t >= near at which `o + t d` (unit d) is inside the ball of
 /// radius `r` about the origin, if any (closed form, f64).
-fn ball_entry(o: [f64; 3], d: [f64; 3], r: f64, near: f64) -> Option<f64> {
+pub(super) fn ball_entry(o: [f64; 3], d: [f64; 3], r: f64, near: f64) -> Option<f64> {
     let b = o[0] * d[0] + o[1] * d[1] + o[2] * d[2];
     let c = o[0] * o[0] + o[1] * o[1] + o[2] * o[2] - r * r;
     let disc = b * b - c;
