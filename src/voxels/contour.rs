@@ -141,7 +141,11 @@ pub fn slab_interval<F: Real>(v: u32, c: [F; 3], s: F, o: [F; 3], d: [F; 3]) -> 
     let th = h * s;
     let big = F::of(f64::MAX);
     if nd == F::zero() {
-        return if s0.abs() <= th { (-big, big) } else { (big, -big) };
+        return if s0.abs() <= th {
+            (-big, big)
+        } else {
+            (big, -big)
+        };
     }
     let a = (-th - s0) / nd;
     let b = (th - s0) / nd;
@@ -164,8 +168,11 @@ mod tests {
         let dot = m[0] * n[0] + m[1] * n[1] + m[2] * n[2];
         assert!(dot > 0.999, "{m:?}");
         assert!((p - 0.21).abs() <= 0.5 * P_STEP + 1e-12, "{p}");
-        assert!(h >= 0.05 && h <= 0.05 + H_STEP, "{h}");
-        assert_eq!(decode::<f64>(encode([0.0, 0.0, -1.0], -0.5, 0.0)).0, [0.0, 0.0, -1.0]);
+        assert!((0.05..=0.05 + H_STEP).contains(&h), "{h}");
+        assert_eq!(
+            decode::<f64>(encode([0.0, 0.0, -1.0], -0.5, 0.0)).0,
+            [0.0, 0.0, -1.0]
+        );
         assert!(encode([0.0, 0.0, 1.0], 0.0, 0.0) != 0);
     }
 

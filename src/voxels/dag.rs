@@ -247,9 +247,8 @@ pub fn build_dag(tree: &Octree, budget: &MemBudget) -> Result<Dag> {
         .pack();
         lo as u64 | (ptr as u64) << 32
     };
-    let count = |n: u64| {
-        u32::try_from(n).map_err(|_| Error::invalid("voxel DAG", "more than 2^32 leaves"))
-    };
+    let count =
+        |n: u64| u32::try_from(n).map_err(|_| Error::invalid("voxel DAG", "more than 2^32 leaves"));
     // Blocks bottom-up, so a block's descriptors (with their own children's
     // addresses) are known when it is placed.
     let mut packer = Packer::default();
@@ -425,7 +424,12 @@ mod tests {
     fn menger_sponge_shrinks_and_the_far_bit_is_never_set() {
         let t = build(&Shape::Menger { level: 4 }, 7, &big()).unwrap();
         let g = build_dag(&t, &big()).unwrap();
-        assert!(g.stats.slots * 3 < t.stats.descriptors, "{:?} {:?}", g.stats, t.stats);
+        assert!(
+            g.stats.slots * 3 < t.stats.descriptors,
+            "{:?} {:?}",
+            g.stats,
+            t.stats
+        );
         assert!((0..g.nodes.len() / 2).all(|s| g.nodes[2 * s] >> 16 == 0));
         assert_eq!(g.stats.nodes_per_level[0], 1);
     }
@@ -436,7 +440,16 @@ mod tests {
         let blocks: [&[(usize, u64, u32)]; 5] = [
             &[(0, 11, 1), (7, 12, 1)],
             &[(0, 13, 1)],
-            &[(0, 1, 1), (1, 2, 1), (2, 3, 1), (3, 4, 1), (4, 5, 1), (5, 6, 1), (6, 7, 1), (7, 8, 1)],
+            &[
+                (0, 1, 1),
+                (1, 2, 1),
+                (2, 3, 1),
+                (3, 4, 1),
+                (4, 5, 1),
+                (5, 6, 1),
+                (6, 7, 1),
+                (7, 8, 1),
+            ],
             &[(6, 14, 1)],
             &[(1, 3, 1), (2, 4, 1)],
         ];

@@ -533,7 +533,8 @@ mod tests {
                     assert_eq!(d.attr_base + (leaf & ((1 << c) - 1)).count_ones(), i as u32);
                     break;
                 }
-                slot = t.first_child(slot) + (d.nonleaf as u32 & ((1 << c) - 1)).count_ones() as usize;
+                slot =
+                    t.first_child(slot) + (d.nonleaf as u32 & ((1 << c) - 1)).count_ones() as usize;
             }
         }
         assert_eq!(solid, t.stats.solid_voxels);

@@ -31,7 +31,12 @@ pub fn distinct_nodes_per_level(shape: &Shape, depth: u32) -> Result<Vec<u64>> {
     shape.validate(depth)?;
     let n = 1usize << depth;
     let solid: Vec<bool> = (0..n * n * n)
-        .map(|i| shape.solid(depth, [(i % n) as u32, (i / n % n) as u32, (i / (n * n)) as u32]))
+        .map(|i| {
+            shape.solid(
+                depth,
+                [(i % n) as u32, (i / n % n) as u32, (i / (n * n)) as u32],
+            )
+        })
         .collect();
     let mut out = Vec::new();
     for level in 0..depth {

@@ -27,10 +27,10 @@ use crate::real::{Precision, Real};
 use crate::scene::voxels::VoxelScene;
 use crate::tensor::{Outputs, Tensor};
 use crate::voxels::cast::{CastParams, CastReal};
+use crate::voxels::contour::fit_all;
 use crate::voxels::dag::{build_dag, Dag};
 use crate::voxels::octree::{build, Octree};
 use crate::voxels::raysets::{hard, incoherent, HARD_KINDS};
-use crate::voxels::contour::fit_all;
 use crate::voxels::render::{
     cast_all, cast_all_contours, cast_all_dag, referee_all, shade, Structure, VoxelHits,
 };
@@ -85,7 +85,11 @@ fn from64<F: Real>(rays: Vec<([f64; 3], [f64; 3])>) -> (Vec<[F; 3]>, Vec<[F; 3]>
         .unzip()
 }
 
-pub(super) fn camera_batch<F: Real>(ctx: &OpCtx, sc: &VoxelScene, size: Option<u32>) -> Result<Batch<F>> {
+pub(super) fn camera_batch<F: Real>(
+    ctx: &OpCtx,
+    sc: &VoxelScene,
+    size: Option<u32>,
+) -> Result<Batch<F>> {
     let (cam, mut gen): (_, RayGen) = sc.view.build()?;
     let cam = match size {
         Some(s) => {

@@ -69,7 +69,10 @@ fn run_in<F: CastReal>(ctx: &OpCtx, radius: f64) -> Result<Outputs> {
                 .map(|a| (lo[a] - x[a]).max(x[a] - lo[a] - s).max(0.0) / s)
                 .fold(0.0, f64::max);
             let (nn, pp, hh) = decode::<f64>(used[i]);
-            let f = (0..3).map(|a| nn[a] * (x[a] - lo[a] - 0.5 * s)).sum::<f64>() / s;
+            let f = (0..3)
+                .map(|a| nn[a] * (x[a] - lo[a] - 0.5 * s))
+                .sum::<f64>()
+                / s;
             slab_excess[i] = ((f - pp).abs() - hh).max(0.0);
         }
     }
@@ -86,10 +89,16 @@ fn run_in<F: CastReal>(ctx: &OpCtx, radius: f64) -> Result<Outputs> {
         out.tensor(name, Tensor::scalar(v));
     }
     out.metric("voxel_size", s);
-    out.counter("contour_hits", used.iter().filter(|&&v| v != 0).count() as u64);
+    out.counter(
+        "contour_hits",
+        used.iter().filter(|&&v| v != 0).count() as u64,
+    );
     out.counter("contours", cs.iter().filter(|&&v| v != 0).count() as u64);
     out.tensor("box_excess", Tensor::from_shape_vec(&b.shape, box_excess)?);
-    out.tensor("slab_excess", Tensor::from_shape_vec(&b.shape, slab_excess)?);
+    out.tensor(
+        "slab_excess",
+        Tensor::from_shape_vec(&b.shape, slab_excess)?,
+    );
     out.tensor("t", Tensor::real(&b.shape, con.t)?);
     out.tensor("hit", Tensor::from_shape_vec(&b.shape, con.hit)?);
     Ok(out)

@@ -120,15 +120,18 @@ fn dag_op(ctx: &OpCtx) -> Result<Outputs> {
     build_metrics(&mut out, &tree);
     dag_metrics(&mut out, &g);
     let t = &tree.stats;
-    out.metric("octree_over_dag_bytes", t.bytes as f64 / g.stats.bytes as f64)
-        .metric(
-            "dag_bytes_per_voxel",
-            if t.solid_voxels == 0 {
-                0.0
-            } else {
-                g.stats.bytes as f64 / t.solid_voxels as f64
-            },
-        );
+    out.metric(
+        "octree_over_dag_bytes",
+        t.bytes as f64 / g.stats.bytes as f64,
+    )
+    .metric(
+        "dag_bytes_per_voxel",
+        if t.solid_voxels == 0 {
+            0.0
+        } else {
+            g.stats.bytes as f64 / t.solid_voxels as f64
+        },
+    );
     out.tensor("nodes_per_level", per_level(&g.stats.nodes_per_level)?);
     match ctx.precision {
         Precision::F32 => bench_in::<f32>(ctx, &sc, &tree, &g, &mut out)?,
