@@ -7,6 +7,7 @@
 pub mod cast;
 pub mod contour;
 pub mod dag;
+pub mod gpu;
 pub mod octree;
 pub mod raysets;
 pub mod referee;

@@ -17,6 +17,7 @@ mod volume_diff;
 mod voxels;
 mod voxels_contour;
 mod voxels_dag;
+mod voxels_gpu;
 
 use std::path::{Path, PathBuf};
 
@@ -138,6 +139,7 @@ pub fn table() -> impl Iterator<Item = &'static OpEntry> {
         voxels::OPS,
         voxels_dag::OPS,
         voxels_contour::OPS,
+        voxels_gpu::OPS,
         selftest::OPS,
     ]
     .into_iter()

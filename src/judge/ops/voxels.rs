@@ -18,7 +18,7 @@
 
 use std::time::Instant;
 
-use super::{OpCtx, OpEntry};
+use super::{BackendKind, OpCtx, OpEntry};
 use crate::budget::bytes_for;
 use crate::error::{Error, Result};
 use crate::parallel::par_collect;
@@ -65,7 +65,7 @@ pub const OPS: &[OpEntry] = &[
     },
 ];
 
-fn load(ctx: &OpCtx) -> Result<VoxelScene> {
+pub(super) fn load(ctx: &OpCtx) -> Result<VoxelScene> {
     crate::scene::voxels::parse(ctx.scene()?)
 }
 
@@ -76,10 +76,10 @@ pub(super) struct Batch<F> {
     pub(super) shape: Vec<usize>,
     pub(super) near: f64,
     pub(super) far: f64,
-    kind: Option<Vec<i32>>,
+    pub(super) kind: Option<Vec<i32>>,
 }
 
-fn from64<F: Real>(rays: Vec<([f64; 3], [f64; 3])>) -> (Vec<[F; 3]>, Vec<[F; 3]>) {
+pub(super) fn from64<F: Real>(rays: Vec<([f64; 3], [f64; 3])>) -> (Vec<[F; 3]>, Vec<[F; 3]>) {
     rays.into_iter()
         .map(|(o, d)| (o.map(F::of), d.map(F::of)))
         .unzip()
@@ -112,7 +112,7 @@ pub(super) fn camera_batch<F: Real>(
     })
 }
 
-fn batch<F: Real>(ctx: &OpCtx, sc: &VoxelScene) -> Result<Batch<F>> {
+pub(super) fn batch<F: Real>(ctx: &OpCtx, sc: &VoxelScene) -> Result<Batch<F>> {
     let src: String = ctx.param_or("rays", "camera".to_string())?;
     let seed: u32 = ctx.param_or("seed", ctx.seed)?;
     let count: u32 = ctx.param_or("count", 4096)?;
@@ -171,7 +171,7 @@ fn batch<F: Real>(ctx: &OpCtx, sc: &VoxelScene) -> Result<Batch<F>> {
 
 /// The batch in the (N, 9) dump layout of `Rays::to_tensor` (`--dump-failing`;
 /// `render --rays` replays it). An infinite far is written as 1e30.
-fn dump_rays<F: Real>(b: &Batch<F>) -> Result<Tensor> {
+pub(super) fn dump_rays<F: Real>(b: &Batch<F>) -> Result<Tensor> {
     let n = b.o.len();
     let far = if b.far.is_finite() { b.far } else { 1e30 };
     Rays {
@@ -205,7 +205,7 @@ fn leaf_key(leaf: &[[i32; 3]], depth: u32) -> Vec<f64> {
         .collect()
 }
 
-fn put_hits<F: Real>(
+pub(super) fn put_hits<F: Real>(
     out: &mut Outputs,
     h: VoxelHits<F>,
     shape: &[usize],
@@ -305,9 +305,17 @@ fn render_in<F: CastReal>(
 }
 
 fn render(ctx: &OpCtx) -> Result<Outputs> {
-    ctx.cpu_only()?;
     let sc = load(ctx)?;
     let tree = build(&sc.shape, sc.depth, &ctx.budget)?;
+    if ctx.backend == BackendKind::Gpu {
+        if sc.structure != Structure::Octree || sc.contours {
+            return Err(Error::NotSupported(format!(
+                "{}: the GPU cast reads the octree without contours (structure: dag and contours run on the CPU)",
+                ctx.case_id
+            )));
+        }
+        return super::voxels_gpu::render_gpu(ctx, &sc, &tree);
+    }
     let dag = match sc.structure {
         Structure::Octree => None,
         Structure::Dag => Some(build_dag(&tree, &ctx.budget)?),
@@ -324,7 +332,7 @@ fn render(ctx: &OpCtx) -> Result<Outputs> {
     }
 }
 
-fn widen<F: Real>(b: &Batch<F>) -> (Vec<[f64; 3]>, Vec<[f64; 3]>) {
+pub(super) fn widen<F: Real>(b: &Batch<F>) -> (Vec<[f64; 3]>, Vec<[f64; 3]>) {
     (
         b.o.iter().map(|v| v.map(|x| x.f64())).collect(),
         b.d.iter().map(|v| v.map(|x| x.f64())).collect(),
