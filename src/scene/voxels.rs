@@ -7,6 +7,8 @@
 //! | `depth` | octree depth d: 2^d voxels per axis over [-1, 1]^3, 1..=22 | required |
 //! | `lod` | `{orig_size, dir_size}`: LOD cut when `orig_size + t dir_size` >= voxel size (world units) | off |
 //! | `max_iter` | cast iteration cap per ray | max(2^16, 16 * 2^depth) |
+//! | `contours` | `true`: intersect each surface voxel's contour slab (sphere only; octree only); SCENES.md outputs are defined without | `false` |
+//! | `structure` | `octree` (ESVO, relative addressing) or `dag` (identical subtrees merged, absolute addressing; same outputs) | `octree` |
 //! | view keys | `camera`, `width`, `height`, `roi`, `near`, `far`, ... | see `scene/rays.rs` |
 
 use serde::Deserialize;
@@ -15,6 +17,7 @@ use super::rays::{ViewSpec, VIEW_KEYS};
 use super::SceneDoc;
 use crate::error::{Error, Result};
 use crate::voxels::cast::{default_max_iter, Lod};
+use crate::voxels::render::Structure;
 use crate::voxels::shape::{Shape, VoxelBox};
 
 #[derive(Clone, Copy, Debug, Deserialize, PartialEq)]
@@ -51,6 +54,10 @@ pub struct VoxelsRest {
     pub lod: Option<LodSpec>,
     #[serde(default)]
     pub max_iter: Option<u32>,
+    #[serde(default)]
+    pub structure: Structure,
+    #[serde(default)]
+    pub contours: bool,
 }
 
 /// A parsed, validated voxel scene.
@@ -61,6 +68,8 @@ pub struct VoxelScene {
     pub depth: u32,
     pub lod: Option<Lod>,
     pub max_iter: u32,
+    pub structure: Structure,
+    pub contours: bool,
 }
 
 /// Parses and validates a `renderer: voxels` scene.
@@ -109,6 +118,12 @@ pub fn parse(doc: &SceneDoc) -> Result<VoxelScene> {
             "must be at least 1",
         ));
     }
+    if rest.contours && rest.structure == Structure::Dag {
+        return Err(Error::invalid(
+            format!("{at} key `contours`"),
+            "contours are per-leaf data: use them with `structure: octree`",
+        ));
+    }
     view.build()?;
     Ok(VoxelScene {
         view,
@@ -116,6 +131,8 @@ pub fn parse(doc: &SceneDoc) -> Result<VoxelScene> {
         depth: rest.depth,
         lod,
         max_iter,
+        structure: rest.structure,
+        contours: rest.contours,
     })
 }
 
@@ -150,5 +167,12 @@ mod tests {
             .unwrap_err()
             .to_string();
         assert!(e.contains("shape"), "{e}");
+        assert_eq!(s.structure, Structure::Octree);
+        let d = parse(&doc(&format!("{SPHERE}structure: dag\n"))).unwrap();
+        assert_eq!(d.structure, Structure::Dag);
+        let e = parse(&doc(&format!("{SPHERE}structure: tree\n")))
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("structure"), "{e}");
     }
 }

@@ -30,6 +30,8 @@
 
 use crate::real::Real;
 
+use super::contour::slab_interval;
+
 /// Scale of the root's children + 1: f32's mantissa bits.
 pub const S_MAX: i32 = 23;
 
@@ -131,6 +133,8 @@ pub struct CastHit<F> {
     pub level: u32,
     /// Attribute index of the leaf, `u32::MAX` for an LOD cut at an inner node.
     pub attr: u32,
+    /// The contour whose slab gave `t` ([`super::contour`]), 0 for none.
+    pub contour: u32,
     pub iters: u32,
     pub capped: bool,
 }
@@ -145,6 +149,7 @@ impl<F: CastReal> CastHit<F> {
             normal: [0; 3],
             level: 0,
             attr: u32::MAX,
+            contour: 0,
             iters,
             capped,
         }
@@ -181,16 +186,109 @@ fn max3<F: Real>(a: [F; 3]) -> F {
     fmax(fmax(a[0], a[1]), a[2])
 }
 
+/// How a traversal finds a node's children: the one difference between the
+/// octree ([`Relative`]) and the DAG ([`Absolute`]) casts, chosen at compile
+/// time so both run the same loop with the same float operations.
+pub trait Addressing {
+    /// Slot of child `c`'s descriptor, for the node at slot `parent` with
+    /// low word `desc`; `child_masks` is `desc` shifted so that bits 0..7
+    /// are the non-leaf bits of the children before `c` (in the mirrored
+    /// order the loop visits).
+    fn child(nodes: &[u32], parent: usize, desc: u32, child_masks: u32, c: u32) -> usize;
+    /// Attribute index of leaf child `c` of the node at `parent`, or
+    /// `u32::MAX` where the layout cannot tell (the DAG: see
+    /// [`super::dag::Dag::attr_index`]).
+    fn leaf_attr(nodes: &[u32], parent: usize, desc: u32, c: u32) -> u32;
+}
+
+/// ESVO octree addressing ([`super::octree`]): children at
+/// `parent + ptr + popcount(non-leaf bits before c)`, through a far-pointer
+/// slot when the far bit is set; the high word is the attribute base.
+pub struct Relative;
+
+/// DAG addressing ([`super::dag`]): the high word is the absolute slot of the
+/// node's 8-slot children block and child `c` sits at `high + c`.
+pub struct Absolute;
+
+impl Addressing for Relative {
+    #[inline(always)]
+    fn child(nodes: &[u32], parent: usize, desc: u32, child_masks: u32, _c: u32) -> usize {
+        let mut ofs = (desc >> 17) as usize;
+        if desc & 0x1_0000 != 0 {
+            ofs = nodes[2 * (parent + ofs)] as usize;
+        }
+        parent + ofs + (child_masks & 0x7F).count_ones() as usize
+    }
+    #[inline(always)]
+    fn leaf_attr(nodes: &[u32], parent: usize, desc: u32, c: u32) -> u32 {
+        let leafmask = (desc >> 8) & !desc & 0xFF;
+        nodes[2 * parent + 1] + (leafmask & ((1 << c) - 1)).count_ones()
+    }
+}
+
+impl Addressing for Absolute {
+    #[inline(always)]
+    fn child(nodes: &[u32], parent: usize, _desc: u32, _child_masks: u32, c: u32) -> usize {
+        nodes[2 * parent + 1] as usize + c as usize
+    }
+    #[inline(always)]
+    fn leaf_attr(_nodes: &[u32], _parent: usize, _desc: u32, _c: u32) -> u32 {
+        u32::MAX
+    }
+}
+
 /// Casts the ray `o + t d`, t in `[near, far]`, through the octree `nodes`
-/// (layout of [`super::octree`]) of depth `depth`. Per-axis loops index
-/// arrays as a WGSL kernel would.
-#[allow(clippy::needless_range_loop)]
+/// (layout of [`super::octree`]) of depth `depth`.
 pub fn cast<F: CastReal>(
     nodes: &[u32],
     depth: u32,
     o: [F; 3],
     d: [F; 3],
     p: &CastParams,
+) -> CastHit<F> {
+    cast_with::<F, Relative>(nodes, depth, o, d, p, None)
+}
+
+/// [`cast`] with contours (issue 14): `contours[attr]` is the contour of the
+/// finest-level leaf with attribute index `attr` (0: none). At such a leaf
+/// the ray's t interval inside the voxel is cut to the contour's slab; the
+/// voxel is hit at the cut interval's start, or passed when it is empty.
+/// `t` then never leaves the voxel's [entry, exit].
+pub fn cast_contours<F: CastReal>(
+    nodes: &[u32],
+    depth: u32,
+    o: [F; 3],
+    d: [F; 3],
+    p: &CastParams,
+    contours: &[u32],
+) -> CastHit<F> {
+    cast_with::<F, Relative>(nodes, depth, o, d, p, Some(contours))
+}
+
+/// The same cast through a DAG's `nodes` (layout of [`super::dag`]): the same
+/// loop as [`cast`], so `t`, voxel, normal, level and iterations are
+/// bit-identical; `attr` is `u32::MAX` (the DAG finds it by
+/// [`super::dag::Dag::attr_index`]).
+pub fn cast_dag<F: CastReal>(
+    nodes: &[u32],
+    depth: u32,
+    o: [F; 3],
+    d: [F; 3],
+    p: &CastParams,
+) -> CastHit<F> {
+    cast_with::<F, Absolute>(nodes, depth, o, d, p, None)
+}
+
+/// The Laine–Karras loop, generic over the child addressing `A`. Per-axis
+/// loops index arrays as a WGSL kernel would.
+#[allow(clippy::needless_range_loop)]
+pub fn cast_with<F: CastReal, A: Addressing>(
+    nodes: &[u32],
+    depth: u32,
+    o: [F; 3],
+    d: [F; 3],
+    p: &CastParams,
+    contours: Option<&[u32]>,
 ) -> CastHit<F> {
     let one = F::one();
     let half = F::of(0.5);
@@ -248,6 +346,7 @@ pub fn cast<F: CastReal>(
     }
     let mut iters = 0u32;
     let mut stop: Option<bool> = None; // Some(leaf?) when the loop stops at a voxel
+    let mut contour_hit: Option<(F, u32)> = None;
     while scale < S_MAX {
         iters += 1;
         if iters > p.max_iter {
@@ -271,23 +370,40 @@ pub fn cast<F: CastReal>(
             let tv_max = fmin(t_max, tc_max);
             let halfs = scale_exp2 * half;
             let tcen = [0, 1, 2].map(|a| halfs * coef[a] + tc[a]);
-            if t_min <= tv_max {
-                if child_masks & 0x80 == 0 {
+            if t_min <= tv_max && child_masks & 0x80 == 0 {
+                // A leaf: the hit, unless its contour's slab misses the ray.
+                let slab = match contours {
+                    Some(cs) if S_MAX - scale == depth as i32 => {
+                        let at = A::leaf_attr(nodes, parent, desc, child_shift ^ 7) as usize;
+                        let v = cs.get(at).copied().unwrap_or(0);
+                        (v != 0).then(|| {
+                            let cen = [0, 1, 2].map(|a| {
+                                let lo = if octant >> a & 1 == 0 {
+                                    F::of(3.0) - scale_exp2 - pos[a]
+                                } else {
+                                    pos[a]
+                                };
+                                two * lo + scale_exp2 - F::of(3.0)
+                            });
+                            let (ta, tb) = slab_interval(v, cen, two * scale_exp2, o, d);
+                            (fmax(t_min, ta), fmin(tv_max, tb), v)
+                        })
+                    }
+                    _ => None,
+                };
+                if !matches!(slab, Some((a, b, _)) if a > b) {
+                    contour_hit = slab.map(|(a, _, v)| (a, v));
                     stop = Some(true);
                     break;
                 }
+            } else if t_min <= tv_max {
                 // PUSH
                 if tc_max < h {
                     stack_node[scale as usize] = parent as u32;
                     stack_tmax[scale as usize] = t_max;
                 }
                 h = tc_max;
-                let mut ofs = (desc >> 17) as usize;
-                if desc & 0x1_0000 != 0 {
-                    ofs = nodes[2 * (parent + ofs)] as usize;
-                }
-                ofs += (child_masks & 0x7F).count_ones() as usize;
-                parent += ofs;
+                parent = A::child(nodes, parent, desc, child_masks, child_shift ^ 7);
                 idx = 0;
                 scale -= 1;
                 scale_exp2 = halfs;
@@ -355,10 +471,7 @@ pub fn cast<F: CastReal>(
     }
     let level = (S_MAX - scale) as u32;
     let attr = if leaf {
-        let c = (idx ^ octant) ^ 7;
-        let d = desc;
-        let leafmask = (d >> 8) & !d & 0xFF;
-        nodes[2 * parent + 1] + (leafmask & ((1 << c) - 1)).count_ones()
+        A::leaf_attr(nodes, parent, desc, (idx ^ octant) ^ 7)
     } else {
         u32::MAX
     };
@@ -386,6 +499,7 @@ pub fn cast<F: CastReal>(
         }
         _ => t_min,
     };
+    let t = contour_hit.map_or(t, |(tc, _)| tc);
     let hitp = [0, 1, 2].map(|a| o[a] + t * d[a]);
     let mut voxel = [0u32; 3];
     for a in 0..3 {
@@ -415,6 +529,7 @@ pub fn cast<F: CastReal>(
         normal,
         level,
         attr,
+        contour: contour_hit.map_or(0, |(_, v)| v),
         iters,
         capped: false,
     }

@@ -6,11 +6,14 @@
 //! 003; SCENES.md "Sparse voxels" fixes voxel indexing and outputs.
 
 pub mod cast;
+pub mod contour;
+pub mod dag;
 pub mod gpu;
 pub mod octree;
 pub mod outputs;
 pub mod raysets;
 pub mod referee;
+pub mod referee_dag;
 pub mod render;
 pub mod shape;
 

@@ -373,6 +373,42 @@ impl Octree {
         }
     }
 
+    /// Every stored leaf as (level, low-corner finest voxel), indexed by
+    /// attribute index (pre-order: a node's own leaves, then its children's
+    /// subtrees in child order).
+    pub fn leaves(&self) -> Vec<(u32, [u32; 3])> {
+        let mut out = Vec::with_capacity(self.stats.leaves as usize);
+        let mut stack = vec![(0usize, 0u32, [0u32; 3])];
+        while let Some((slot, level, lo)) = stack.pop() {
+            let d = self.descriptor(slot);
+            let h = 1u32 << (self.depth - level - 1);
+            let corner = |c: u32| {
+                [
+                    lo[0] + (c & 1) * h,
+                    lo[1] + (c >> 1 & 1) * h,
+                    lo[2] + (c >> 2 & 1) * h,
+                ]
+            };
+            let leaf = d.valid & !d.nonleaf;
+            for c in 0..8 {
+                if leaf >> c & 1 == 1 {
+                    out.push((level + 1, corner(c)));
+                }
+            }
+            if d.nonleaf != 0 {
+                let first = self.first_child(slot);
+                let mut k = d.nonleaf.count_ones() as usize;
+                for c in (0..8).rev() {
+                    if d.nonleaf >> c & 1 == 1 {
+                        k -= 1;
+                        stack.push((first + k, level + 1, corner(c)));
+                    }
+                }
+            }
+        }
+        out
+    }
+
     /// Point query by descending the tree: is finest voxel `v` solid? Walks
     /// the layout only (no traversal), for tests of the build.
     pub fn solid_at(&self, v: [u32; 3]) -> bool {
@@ -474,6 +510,34 @@ mod tests {
             ),
             Err(Error::OutOfMemory { .. })
         ));
+    }
+
+    #[test]
+    fn leaves_come_in_attribute_order_and_cover_the_solid_voxels() {
+        let s = Shape::Sphere { radius: 0.8 };
+        let t = build(&s, 5, &big()).unwrap();
+        let leaves = t.leaves();
+        assert_eq!(leaves.len() as u64, t.stats.leaves);
+        let mut solid = 0u128;
+        for (i, &(level, lo)) in leaves.iter().enumerate() {
+            let size = 1u32 << (5 - level);
+            solid += (size as u128).pow(3);
+            assert!(t.solid_at(lo) && s.solid(5, lo), "{i} {lo:?}");
+            // The attribute index the point walk finds is this leaf's.
+            let mut slot = 0usize;
+            for l in (0..5).rev() {
+                let c = (lo[0] >> l & 1) | (lo[1] >> l & 1) << 1 | (lo[2] >> l & 1) << 2;
+                let d = t.descriptor(slot);
+                if d.nonleaf >> c & 1 == 0 {
+                    let leaf = (d.valid & !d.nonleaf) as u32;
+                    assert_eq!(d.attr_base + (leaf & ((1 << c) - 1)).count_ones(), i as u32);
+                    break;
+                }
+                slot =
+                    t.first_child(slot) + (d.nonleaf as u32 & ((1 << c) - 1)).count_ones() as usize;
+            }
+        }
+        assert_eq!(solid, t.stats.solid_voxels);
     }
 
     #[test]

@@ -12,7 +12,8 @@
 use crate::parallel::par_collect;
 use crate::real::Real;
 
-use super::cast::{cast, CastParams, CastReal};
+use super::cast::{cast, cast_contours, cast_dag, CastHit, CastParams, CastReal};
+use super::dag::Dag;
 use super::octree::Octree;
 use super::referee::referee;
 use super::shape::Shape;
@@ -56,6 +57,17 @@ pub fn shade<F: Real>(hit: bool, normal: [F; 3]) -> [F; 3] {
     ALBEDO[axis].map(|a| F::of(a * k))
 }
 
+/// Which structure a scene is cast through (scene key `structure`).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Structure {
+    /// The ESVO octree, relative child addressing.
+    #[default]
+    Octree,
+    /// The DAG built from it, absolute child addressing: same outputs.
+    Dag,
+}
+
 /// Casts every ray `(o[i], d[i])`, t in `[p.near, p.far]`.
 pub fn cast_all<F: CastReal>(
     tree: &Octree,
@@ -63,9 +75,40 @@ pub fn cast_all<F: CastReal>(
     d: &[[F; 3]],
     p: &CastParams,
 ) -> VoxelHits<F> {
-    let res = par_collect("voxels.cast", o.len(), |i| {
+    collect(par_collect("voxels.cast", o.len(), |i| {
         cast::<F>(&tree.nodes, tree.depth, o[i], d[i], p)
+    }))
+}
+
+/// [`cast_all`] through the DAG (same loop, absolute addressing).
+pub fn cast_all_dag<F: CastReal>(
+    dag: &Dag,
+    o: &[[F; 3]],
+    d: &[[F; 3]],
+    p: &CastParams,
+) -> VoxelHits<F> {
+    collect(par_collect("voxels.cast_dag", o.len(), |i| {
+        cast_dag::<F>(&dag.nodes, dag.depth, o[i], d[i], p)
+    }))
+}
+
+/// [`cast_all`] with contours (`contours[attr]`, 0 = none); also returns
+/// each ray's contour (0 when its t did not come from a slab).
+pub fn cast_all_contours<F: CastReal>(
+    tree: &Octree,
+    contours: &[u32],
+    o: &[[F; 3]],
+    d: &[[F; 3]],
+    p: &CastParams,
+) -> (VoxelHits<F>, Vec<u32>) {
+    let res = par_collect("voxels.cast_contours", o.len(), |i| {
+        cast_contours::<F>(&tree.nodes, tree.depth, o[i], d[i], p, contours)
     });
+    let used = res.iter().map(|h| h.contour).collect();
+    (collect(res), used)
+}
+
+fn collect<F: CastReal>(res: Vec<CastHit<F>>) -> VoxelHits<F> {
     let mut out = VoxelHits::default();
     for h in res {
         out.hit.push(h.hit as u8);

@@ -27,6 +27,8 @@ mod transport_kerr;
 mod volume;
 mod volume_diff;
 mod voxels;
+mod voxels_contour;
+mod voxels_dag;
 mod voxels_gpu;
 
 use std::path::{Path, PathBuf};
@@ -202,6 +204,8 @@ pub fn table() -> impl Iterator<Item = &'static OpEntry> {
         transport::OPS,
         transport_kerr::OPS,
         voxels::OPS,
+        voxels_dag::OPS,
+        voxels_contour::OPS,
         voxels_gpu::OPS,
         selftest::OPS,
     ]

@@ -3,7 +3,7 @@
 //!
 //! | op | what |
 //! | --- | --- |
-//! | `voxels.render` | build the octree, cast every ray: hit, t, leaf, normal, image, iters, leaf_key; build and cast metrics |
+//! | `voxels.render` | build the octree (and the DAG with `structure: dag`), cast every ray: hit, t, leaf, normal, image, iters, leaf_key; build and cast metrics |
 //! | `voxels.referee` | the exact f64 DDA over the scene predicate on the same rays, with tie flags |
 //! | `voxels.sphere_bounds` | analytic entry distances of the spheres r -+ half a voxel diagonal (sphere scenes) |
 //! | `voxels.bench` | Mrays/s of octree and referee, coherent and incoherent, build time, bytes per voxel |
@@ -28,10 +28,12 @@ use crate::real::Real;
 use crate::scene::voxels::VoxelScene;
 use crate::tensor::{Outputs, Tensor};
 use crate::voxels::cast::{CastParams, CastReal};
+use crate::voxels::contour::fit_all;
+use crate::voxels::dag::{build_dag, Dag};
 use crate::voxels::octree::{build, Octree};
 use crate::voxels::raysets::{hard, incoherent, HARD_KINDS};
 use crate::voxels::outputs::{build_metrics, put_hits};
-use crate::voxels::render::{cast_all, referee_all};
+use crate::voxels::render::{cast_all, cast_all_contours, cast_all_dag, referee_all, Structure};
 use crate::voxels::shape::Shape;
 
 const RAY_PARAMS: &[&str] = &["rays", "count", "seed"];
@@ -182,7 +184,13 @@ pub(super) fn dump_rays<F: Real>(b: &Batch<F>) -> Result<Tensor> {
     .to_tensor()
 }
 
-fn render_in<F: CastReal>(ctx: &OpCtx, sc: &VoxelScene, tree: &Octree) -> Result<Outputs> {
+fn render_in<F: CastReal>(
+    ctx: &OpCtx,
+    sc: &VoxelScene,
+    tree: &Octree,
+    dag: Option<&Dag>,
+    contours: Option<&[u32]>,
+) -> Result<Outputs> {
     let b = batch::<F>(ctx, sc)?;
     let n = b.o.len() as u64;
     ctx.budget.check(
@@ -196,9 +204,16 @@ fn render_in<F: CastReal>(ctx: &OpCtx, sc: &VoxelScene, tree: &Octree) -> Result
         max_iter: sc.max_iter,
     };
     let t0 = Instant::now();
-    let h = cast_all::<F>(tree, &b.o, &b.d, &p);
+    let h = match (dag, contours) {
+        (Some(g), _) => cast_all_dag::<F>(g, &b.o, &b.d, &p),
+        (None, Some(cs)) => cast_all_contours::<F>(tree, cs, &b.o, &b.d, &p).0,
+        (None, None) => cast_all::<F>(tree, &b.o, &b.d, &p),
+    };
     let s = t0.elapsed().as_secs_f64();
     let mut out = Outputs::default();
+    if let Some(g) = dag {
+        super::voxels_dag::dag_metrics(&mut out, g);
+    }
     if ctx.dump {
         out.tensor("rays", dump_rays(&b)?);
     }
@@ -218,9 +233,25 @@ fn render(ctx: &OpCtx) -> Result<Outputs> {
     let sc = load(ctx)?;
     let tree = build(&sc.shape, sc.depth, &ctx.budget)?;
     if ctx.backend == BackendKind::Gpu {
+        if sc.structure != Structure::Octree || sc.contours {
+            return Err(Error::NotSupported(format!(
+                "{}: the GPU cast reads the octree without contours (structure: dag and contours run on the CPU)",
+                ctx.case_id
+            )));
+        }
         return super::voxels_gpu::render_gpu(ctx, &sc, &tree);
     }
-    by_precision!(ctx, render_in(ctx, &sc, &tree))
+    let dag = match sc.structure {
+        Structure::Octree => None,
+        Structure::Dag => Some(build_dag(&tree, &ctx.budget)?),
+    };
+    let contours = if sc.contours {
+        Some(fit_all(&sc.shape, &tree)?)
+    } else {
+        None
+    };
+    let (g, cs) = (dag.as_ref(), contours.as_deref());
+    by_precision!(ctx, render_in(ctx, &sc, &tree, g, cs))
 }
 
 pub(super) fn widen<F: Real>(b: &Batch<F>) -> (Vec<[f64; 3]>, Vec<[f64; 3]>) {
@@ -267,7 +298,7 @@ fn referee_op(ctx: &OpCtx) -> Result<Outputs> {
 
 /// First t >= near at which `o + t d` (unit d) is inside the ball of
 /// radius `r` about the origin, if any (closed form, f64).
-fn ball_entry(o: [f64; 3], d: [f64; 3], r: f64, near: f64) -> Option<f64> {
+pub(super) fn ball_entry(o: [f64; 3], d: [f64; 3], r: f64, near: f64) -> Option<f64> {
     let b = o[0] * d[0] + o[1] * d[1] + o[2] * d[2];
     let c = o[0] * o[0] + o[1] * o[1] + o[2] * o[2] - r * r;
     let disc = b * b - c;
