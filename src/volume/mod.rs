@@ -3,7 +3,7 @@
 //!
 //! | stage | file | in -> out |
 //! | --- | --- | --- |
-//! | fields | `field.rs` | analytic / dense grid descriptions -> `Field<F>`, `ColorField<F>` |
+//! | fields | `field/` | analytic / dense grid descriptions -> `Field<F>`, `ColorField<F>` |
 //! | `f_samp` | `sample.rs` | rays -> packed samples (`off`, `ray_id`, `t`, `dt`, `sigma`, `color`) |
 //! | `f_int` | `integrate.rs` | samples -> per-ray results + persisted `alpha`, `log_t` |
 //! | `f_img` | `compose.rs` | per-ray results -> image (sorted or scatter path) |
