@@ -19,6 +19,7 @@ pub mod fused;
 pub mod gpu;
 pub mod integrate;
 pub mod occupancy;
+pub mod referee_hash;
 pub mod sample;
 
 use std::time::Instant;

@@ -297,6 +297,7 @@ fn ref_sigma(f: &FieldDesc, x: [f64; 3]) -> f64 {
                 0.0
             }
         }
+        FieldDesc::HashMlp(h) => crate::volume::referee_hash::query(h, x).0,
         FieldDesc::Analytic(Analytic::Linear { a, g }) => {
             a + g[0] * x[0] + g[1] * x[1] + g[2] * x[2]
         }
@@ -344,10 +345,13 @@ fn ref_grid(g: &GridDesc, x: [f64; 3], c: usize) -> f64 {
     v
 }
 
-fn ref_color(c: &ColorDesc, x: [f64; 3]) -> [f64; 3] {
-    match c {
-        ColorDesc::Constant(v) => *v,
-        ColorDesc::Grid(g) => [0, 1, 2].map(|k| ref_grid(g, x, k)),
+fn ref_color(p: &VolumeParams, x: [f64; 3]) -> [f64; 3] {
+    match (&p.color, &p.field) {
+        (ColorDesc::Constant(v), _) => *v,
+        (ColorDesc::Grid(g), _) => [0, 1, 2].map(|k| ref_grid(g, x, k)),
+        (ColorDesc::Mlp, FieldDesc::HashMlp(h)) => crate::volume::referee_hash::query(h, x).1,
+        // Refused by `check_pairing` when the scene is built.
+        (ColorDesc::Mlp, _) => [f64::NAN; 3],
     }
 }
 
@@ -402,7 +406,7 @@ fn op_reference(ctx: &OpCtx) -> Result<Outputs> {
                 let x = [o[0] + t * d[0], o[1] + t * d[1], o[2] + t * d[2]];
                 let tau = ref_sigma(&p.field, x) * (b - a);
                 let alpha = -(-tau).exp_m1();
-                let col = ref_color(&p.color, x);
+                let col = ref_color(&p, x);
                 for ch in 0..3 {
                     c[ch] += tr * alpha * col[ch];
                 }
@@ -602,7 +606,7 @@ fn op_closed_form(ctx: &OpCtx) -> Result<Outputs> {
         ColorDesc::Grid(ref g) if g.data.chunks(3).all(|v| v == &g.data[..3]) => {
             [g.data[0], g.data[1], g.data[2]]
         }
-        ColorDesc::Grid(_) => {
+        ColorDesc::Grid(_) | ColorDesc::Mlp => {
             return Err(Error::NotSupported(format!(
                 "{}: closed form needs a constant colour",
                 ctx.case_id

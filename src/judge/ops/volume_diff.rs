@@ -224,14 +224,14 @@ fn probe_colors(shape: [usize; 3], count: u32, seed: u32) -> Vec<usize> {
 fn grid_shape(f: &FieldDesc) -> Option<[usize; 3]> {
     match f {
         FieldDesc::Grid(g) => Some(g.shape),
-        FieldDesc::Analytic(_) => None,
+        FieldDesc::Analytic(_) | FieldDesc::HashMlp(_) => None,
     }
 }
 
 fn color_shape(c: &ColorDesc) -> Option<[usize; 3]> {
     match c {
         ColorDesc::Grid(g) => Some(g.shape),
-        ColorDesc::Constant(_) => None,
+        ColorDesc::Constant(_) | ColorDesc::Mlp => None,
     }
 }
 
@@ -485,6 +485,8 @@ fn op_grad_fd(ctx: &OpCtx) -> Result<Outputs> {
             }
             out.tensor("dsigma_probe", Tensor::real(&[v.len()], v)?);
         }
+        // Hash-grid parameters: `volume.hash_grad_fd` (ops/volume_hash.rs).
+        FieldDesc::HashMlp(_) => {}
         FieldDesc::Analytic(a) => {
             let params: Vec<f64> = match a {
                 Analytic::Constant { s } => vec![*s],
@@ -546,6 +548,7 @@ fn op_grad_fd(ctx: &OpCtx) -> Result<Outputs> {
             }
             out.tensor("dcolor_probe", Tensor::real(&[v.len()], v)?);
         }
+        ColorDesc::Mlp => {}
         ColorDesc::Constant(c) => {
             let mut v = Vec::with_capacity(3);
             for ch in 0..3 {
@@ -664,7 +667,7 @@ fn op_grad_closed_form(ctx: &OpCtx) -> Result<Outputs> {
     let w = loss_weights(ctx, &gen)?;
     let c = match p.color {
         ColorDesc::Constant(c) => c,
-        ColorDesc::Grid(_) => {
+        ColorDesc::Grid(_) | ColorDesc::Mlp => {
             return Err(Error::NotSupported(format!(
                 "{}: closed-form gradients need a constant colour",
                 ctx.case_id

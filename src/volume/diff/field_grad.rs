@@ -127,6 +127,7 @@ pub fn sigma_grad<F: Real>(field: &Field<F>, x: [F; 3]) -> [F; 3] {
             Some(c) => grid_grad::<F, 1>(g, &c, [F::one()]),
             None => [F::zero(); 3],
         },
+        Field::HashMlp(h) => h.backward(x, [F::one(), F::zero(), F::zero(), F::zero()], None),
     }
 }
 
@@ -134,7 +135,8 @@ pub fn sigma_grad<F: Real>(field: &Field<F>, x: [F; 3]) -> [F; 3] {
 #[inline]
 pub(super) fn color_grad<F: Real>(color: &ColorField<F>, x: [F; 3], gc: [F; 3]) -> [F; 3] {
     match color {
-        ColorField::Constant(_) => [F::zero(); 3],
+        // The hash field's colour head is differentiated with its density.
+        ColorField::Constant(_) | ColorField::Mlp => [F::zero(); 3],
         ColorField::Grid(g) => match cell_of(g, x) {
             Some(c) => grid_grad::<F, 3>(g, &c, gc),
             None => [F::zero(); 3],

@@ -115,6 +115,9 @@ pub struct Grads<F> {
     pub dcolor: Option<Vec<F>>,
     /// For a constant colour.
     pub dcolor_const: Option<[F; 3]>,
+    /// For a `hash_mlp` field: every parameter, the flat order of
+    /// `HashMlpDesc::flat` (tables, then per layer weights and biases).
+    pub dhash: Option<Vec<F>>,
     /// Per sample (unfused with `per_sample`), packed like `Samples`.
     pub dsigma_samples: Option<Vec<F>>,
     pub dcolor_samples: Option<Vec<[F; 3]>>,

@@ -49,6 +49,7 @@ pub(super) fn backward<F: Real>(
         _ => None,
     };
     let nparam = param_count(cx.field);
+    let const_color = matches!(cx.color, ColorField::Constant(_));
     let per_sample = opt.per_sample && buffers.is_some();
     // Per-sample memory of the plan, checked before the walk.
     let fsz = std::mem::size_of::<F>() as u64;
@@ -56,7 +57,20 @@ pub(super) fn backward<F: Real>(
     if buffers.is_some() {
         bps += Samples::<F>::BYTES_PER_SAMPLE + Integrated::<F>::BYTES_PER_SAMPLE;
     }
-    let units: Vec<(usize, usize)> = match opt.reduce {
+    let hash = match cx.field {
+        Field::HashMlp(h) => Some(h),
+        _ => None,
+    };
+    // The hash field's parameters are reduced by fixed chunks of rays (dense
+    // per-chunk gradients summed in chunk order) under either option: the
+    // count does not depend on the thread count, so the sum is deterministic.
+    let reduce = match (hash, opt.reduce) {
+        (Some(_), Reduce::Sorted) => Reduce::Chunked {
+            chunks: super::DEFAULT_CHUNKS,
+        },
+        (_, r) => r,
+    };
+    let units: Vec<(usize, usize)> = match reduce {
         Reduce::Sorted => {
             bps += sig_grid.map_or(0, |_| 4 + 4 * fsz) + col_grid.map_or(0, |_| 4 + 6 * fsz);
             (0..n)
@@ -73,7 +87,8 @@ pub(super) fn backward<F: Real>(
             }
             let k = chunks as u64;
             let dense = sig_grid.map_or(0, |g| g.data.len() as u64)
-                + col_grid.map_or(0, |g| g.data.len() as u64);
+                + col_grid.map_or(0, |g| g.data.len() as u64)
+                + hash.map_or(0, |h| h.param_count() as u64);
             budget.check(
                 "f_diff chunk grids",
                 bytes_for(dense, fsz).and_then(|b| b.checked_mul(k + 1)),
@@ -93,7 +108,7 @@ pub(super) fn backward<F: Real>(
     budget.check("f_diff per-sample state", bytes_for(m_bound, bps))?;
 
     let t_start = Instant::now();
-    let sorted = opt.reduce == Reduce::Sorted;
+    let sorted = reduce == Reduce::Sorted;
     let out_units: Vec<Unit<F>> = par_collect("f_diff", units.len(), |ui| {
         let (a, b) = units[ui];
         let mut u = Unit {
@@ -110,6 +125,7 @@ pub(super) fn backward<F: Real>(
                 (false, Some(g)) => vec![F::zero(); g.data.len()],
                 _ => vec![],
             },
+            hash_dense: vec![F::zero(); hash.map_or(0, |h| h.param_count())],
             per_sample: vec![],
             samples: 0,
         };
@@ -128,11 +144,12 @@ pub(super) fn backward<F: Real>(
             // Records go out back to front; the sorted path wants (ray,
             // sample) order, so a ray's records are reversed after its walk.
             let (s0, c0) = (u.sig_recs.len(), u.col_recs.len());
-            let cam = ray_grads(cx, r, &recs, log_tn, |i, e| {
+            let sink = hash.is_some().then_some(&mut u.hash_dense[..]);
+            let cam = ray_grads(cx, r, &recs, log_tn, sink, |i, e| {
                 if let Some(p) = param_index(cx.field, e.x) {
                     u.param[p].add(e.dsigma);
                 }
-                if col_grid.is_none() {
+                if const_color {
                     for ch in 0..3 {
                         u.color_const[ch].add(e.dcolor[ch]);
                     }
@@ -220,12 +237,17 @@ pub(super) fn backward<F: Real>(
         });
         (sig, col)
     };
+    let dhash = hash.map(|h| {
+        let parts: Vec<&[F]> = out_units.iter().map(|u| &u.hash_dense[..]).collect();
+        sum_chunks(&parts, h.param_count())
+    });
     let (ps_s, ps_c) = split_per_sample(per_sample, &out_units);
     Ok(Grads {
         dsigma,
         dsigma_param: (nparam > 0).then_some(param),
         dcolor,
-        dcolor_const: col_grid.is_none().then_some(color_const),
+        dcolor_const: const_color.then_some(color_const),
+        dhash,
         dsigma_samples: ps_s,
         dcolor_samples: ps_c,
         dcam: dcam.map(F::of),

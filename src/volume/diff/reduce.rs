@@ -131,6 +131,8 @@ pub(super) struct Unit<F> {
     pub(super) col_recs: Vec<GridRec<F, 3>>,
     pub(super) sig_dense: Vec<F>,
     pub(super) col_dense: Vec<F>,
+    /// dL/dparams of a hash field (flat order), dense per unit.
+    pub(super) hash_dense: Vec<F>,
     pub(super) per_sample: Vec<(F, [F; 3])>,
     pub(super) samples: u64,
 }

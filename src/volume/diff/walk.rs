@@ -136,6 +136,7 @@ pub(super) fn ray_grads<F: Real>(
     r: usize,
     recs: &[Rec<F>],
     log_tn: F,
+    mut hash_sink: Option<&mut [F]>,
     mut emit: impl FnMut(usize, Emit<F>),
 ) -> [f64; 6] {
     let rays = cx.rays;
@@ -154,6 +155,14 @@ pub(super) fn ray_grads<F: Real>(
             _ => None,
         };
         let (gs, cc) = match (cx.field, cx.color) {
+            // One back-propagation gives dL/dx and (into the sink) dL/dparams.
+            (Field::HashMlp(h), _) => {
+                let g4 = [sg.dsigma, sg.dcolor[0], sg.dcolor[1], sg.dcolor[2]];
+                (
+                    ([F::zero(); 3], h.backward(x, g4, hash_sink.as_deref_mut())),
+                    None,
+                )
+            }
             (Field::Grid(g), ColorField::Grid(gcol)) if cx.shared_cell => {
                 let gs = cs.map_or([F::zero(); 3], |c| grid_grad::<F, 1>(g, &c, [F::one()]));
                 let gc = cs.map_or([F::zero(); 3], |c| grid_grad::<F, 3>(gcol, &c, sg.dcolor));
@@ -163,7 +172,7 @@ pub(super) fn ray_grads<F: Real>(
                 let gs = cs.map_or([F::zero(); 3], |c| grid_grad::<F, 1>(g, &c, [F::one()]));
                 let cc = match cx.color {
                     ColorField::Grid(gcol) => cell_of(gcol, x),
-                    ColorField::Constant(_) => None,
+                    ColorField::Constant(_) | ColorField::Mlp => None,
                 };
                 let gc = match (cx.color, cc) {
                     (ColorField::Grid(gcol), Some(c)) => grid_grad::<F, 3>(gcol, &c, sg.dcolor),
@@ -174,7 +183,7 @@ pub(super) fn ray_grads<F: Real>(
             _ => {
                 let cc = match cx.color {
                     ColorField::Grid(gcol) => cell_of(gcol, x),
-                    ColorField::Constant(_) => None,
+                    ColorField::Constant(_) | ColorField::Mlp => None,
                 };
                 (
                     (sigma_grad(cx.field, x), color_grad(cx.color, x, sg.dcolor)),

@@ -15,12 +15,16 @@
 //! | `shell` | `s` where `r0 <= abs(x - centre) <= r1`, else 0 |
 //! | `linear` | `max(a + g . x, 0)` (validated `>= 0` on the box) |
 //! | `grid` | node-aligned trilinear interpolation of an (nz, ny, nx) array, OOB `zero` or `clamp` |
+//! | `hash_mlp` | multiresolution hash encoding + MLP (`hash.rs`); its colour head is the colour (`ColorDesc::Mlp`) |
 
 mod analytic;
 mod grid;
+pub mod hash;
+mod hash_grad;
 
 pub use analytic::Analytic;
 pub use grid::{floor_i64, fmax, fmin, Grid, GridDesc};
+pub use hash::{HashMlp, HashMlpDesc};
 
 use crate::real::Real;
 
@@ -38,6 +42,7 @@ pub enum FieldKind {
     Shell = 3,
     Linear = 4,
     Grid = 5,
+    HashMlp = 6,
 }
 
 /// Out-of-box policy of a dense grid (SCENES.md): `Zero`: a corner outside
@@ -54,6 +59,7 @@ pub enum Oob {
 pub enum FieldDesc {
     Analytic(Analytic),
     Grid(GridDesc),
+    HashMlp(Box<HashMlpDesc>),
 }
 
 /// A colour field as described (f64).
@@ -61,6 +67,8 @@ pub enum FieldDesc {
 pub enum ColorDesc {
     Constant([f64; 3]),
     Grid(GridDesc),
+    /// The colour head of a `hash_mlp` density (valid with that field only).
+    Mlp,
 }
 
 impl FieldDesc {
@@ -72,6 +80,7 @@ impl FieldDesc {
             FieldDesc::Analytic(Analytic::Shell { .. }) => FieldKind::Shell,
             FieldDesc::Analytic(Analytic::Linear { .. }) => FieldKind::Linear,
             FieldDesc::Grid(_) => FieldKind::Grid,
+            FieldDesc::HashMlp(_) => FieldKind::HashMlp,
         }
     }
 
@@ -80,6 +89,7 @@ impl FieldDesc {
         match self {
             FieldDesc::Analytic(a) => a.may_be_nonzero(lo, hi),
             FieldDesc::Grid(g) => g.may_be_nonzero(lo, hi),
+            FieldDesc::HashMlp(h) => h.may_be_nonzero(lo, hi),
         }
     }
 
@@ -118,6 +128,7 @@ impl FieldDesc {
                 },
             },
             FieldDesc::Grid(g) => Field::Grid(Grid::from_desc(g)),
+            FieldDesc::HashMlp(h) => Field::HashMlp(Box::new(HashMlp::from_desc(h))),
         }
     }
 }
@@ -127,6 +138,7 @@ impl ColorDesc {
         match self {
             ColorDesc::Constant(c) => ColorField::Constant(c.map(F::of)),
             ColorDesc::Grid(g) => ColorField::Grid(Grid::from_desc(g)),
+            ColorDesc::Mlp => ColorField::Mlp,
         }
     }
 }
@@ -158,6 +170,7 @@ pub enum Field<F> {
         g: [F; 3],
     },
     Grid(Grid<F>),
+    HashMlp(Box<HashMlp<F>>),
 }
 
 impl<F: Real> Field<F> {
@@ -199,6 +212,7 @@ impl<F: Real> Field<F> {
             }
             Field::Linear { a, g } => (*a + g[0] * x[0] + g[1] * x[1] + g[2] * x[2]).max(F::zero()),
             Field::Grid(g) => fmax(g.trilinear::<1>(x)[0], F::zero()),
+            Field::HashMlp(h) => h.query(x).0,
         }
     }
 }
@@ -208,6 +222,9 @@ impl<F: Real> Field<F> {
 pub enum ColorField<F> {
     Constant([F; 3]),
     Grid(Grid<F>),
+    /// The colour head of the `hash_mlp` density: [`Medium::Hash`] queries
+    /// it; [`check_pairing`] keeps it from any other density.
+    Mlp,
 }
 
 impl<F: Real> ColorField<F> {
@@ -216,6 +233,7 @@ impl<F: Real> ColorField<F> {
         match self {
             ColorField::Constant(c) => *c,
             ColorField::Grid(g) => g.trilinear::<3>(x),
+            ColorField::Mlp => [F::zero(); 3],
         }
     }
 }
@@ -233,11 +251,16 @@ pub enum Medium<F> {
         color: ColorField<F>,
     },
     Packed(Grid<F>),
+    /// A `hash_mlp` field: density and colour from one network evaluation.
+    Hash(Box<HashMlp<F>>),
 }
 
 impl<F: Real> Medium<F> {
     /// The medium of `field` and `color` in precision `F`.
     pub fn new(field: &FieldDesc, color: &ColorDesc) -> Medium<F> {
+        if let FieldDesc::HashMlp(h) = field {
+            return Medium::Hash(Box::new(HashMlp::from_desc(h)));
+        }
         if let (FieldDesc::Grid(d), ColorDesc::Grid(c)) = (field, color) {
             if d.shape == c.shape
                 && d.bmin == c.bmin
@@ -274,7 +297,24 @@ impl<F: Real> Medium<F> {
                 let v = g.trilinear::<4>(x);
                 (fmax(v[0], F::zero()), [v[1], v[2], v[3]])
             }
+            Medium::Hash(h) => h.query(x),
         }
+    }
+}
+
+/// A `hash_mlp` density goes with `color: {type: mlp}` and only with it.
+pub fn check_pairing(field: &FieldDesc, color: &ColorDesc, at: &str) -> crate::error::Result<()> {
+    match (field, color) {
+        (FieldDesc::HashMlp(_), ColorDesc::Mlp) => Ok(()),
+        (FieldDesc::HashMlp(_), _) => Err(crate::error::Error::invalid(
+            at,
+            "a hash_mlp field takes its colour from its network: use `color: {type: mlp}`",
+        )),
+        (_, ColorDesc::Mlp) => Err(crate::error::Error::invalid(
+            at,
+            "`color: {type: mlp}` needs a `field: {type: hash_mlp}`",
+        )),
+        _ => Ok(()),
     }
 }
 
