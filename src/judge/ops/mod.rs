@@ -14,6 +14,7 @@ mod selftest;
 mod transport;
 mod volume;
 mod volume_diff;
+mod volume_hash;
 mod voxels;
 
 use std::path::{Path, PathBuf};
@@ -131,6 +132,7 @@ pub fn table() -> impl Iterator<Item = &'static OpEntry> {
         rays::OPS,
         volume::OPS,
         volume_diff::OPS,
+        volume_hash::OPS,
         pathtrace::OPS,
         transport::OPS,
         voxels::OPS,

@@ -101,13 +101,13 @@ fn at(ctx: &OpCtx, key: &str) -> String {
 // The loss.
 
 /// The loss weights of a case, f64, one per ray of the region.
-struct LossW {
+pub(super) struct LossW {
     rgb: Vec<[f64; 3]>,
     depth: f64,
     opacity: f64,
 }
 
-fn loss_weights(ctx: &OpCtx, gen: &RayGen) -> Result<LossW> {
+pub(super) fn loss_weights(ctx: &OpCtx, gen: &RayGen) -> Result<LossW> {
     let roi = gen.region();
     let (h, w) = (roi.height as usize, roi.width as usize);
     let rgb = if let Some(p) = ctx.param::<String>("grad_from")? {
@@ -158,7 +158,7 @@ fn loss_weights(ctx: &OpCtx, gen: &RayGen) -> Result<LossW> {
 }
 
 impl LossW {
-    fn upstream<F: Real>(&self) -> Upstream<F> {
+    pub(super) fn upstream<F: Real>(&self) -> Upstream<F> {
         let n = self.rgb.len();
         Upstream {
             rgb: self.rgb.iter().map(|c| c.map(F::of)).collect(),
@@ -377,7 +377,7 @@ pub fn render_grads(ctx: &OpCtx, out: &mut Outputs) -> Result<()> {
 // volume.grad_fd: the finite-difference referee.
 
 /// `L` of an f64 fused render, summed per pixel in order.
-fn fd_loss(
+pub(super) fn fd_loss(
     ctx: &OpCtx,
     cam: &Camera,
     gen: &RayGen,
@@ -400,7 +400,7 @@ fn fd_loss(
 
 /// Central difference `(L+ - L-) / (2h)`, differenced per pixel first so
 /// untouched pixels contribute exactly 0.
-fn central(lp: &[f64], lm: &[f64], h: f64) -> f64 {
+pub(super) fn central(lp: &[f64], lm: &[f64], h: f64) -> f64 {
     lp.iter().zip(lm).map(|(a, b)| a - b).sum::<f64>() / (2.0 * h)
 }
 
