@@ -9,12 +9,14 @@
 //! | `f_img` | `compose.rs` | per-ray results -> image (sorted or scatter path) |
 //! | `f_fused` | `fused.rs` | camera -> per-ray results, one pass, no sample buffers |
 //! | skipping | `occupancy.rs` | field -> occupancy bitfield |
+//! | inverse rendering | `fit.rs` | target views -> fitted dense grid or hash field (Adam + `f_diff`) |
 //!
 //! [`render`] chains them (fused or unfused) for a typed [`VolumeParams`].
 
 pub mod compose;
 pub mod diff;
 pub mod field;
+pub mod fit;
 pub mod fused;
 pub mod gpu;
 pub mod integrate;

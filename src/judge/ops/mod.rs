@@ -14,6 +14,7 @@ mod selftest;
 mod transport;
 mod volume;
 mod volume_diff;
+mod volume_fit;
 mod volume_hash;
 mod voxels;
 
@@ -133,6 +134,7 @@ pub fn table() -> impl Iterator<Item = &'static OpEntry> {
         volume::OPS,
         volume_diff::OPS,
         volume_hash::OPS,
+        volume_fit::OPS,
         pathtrace::OPS,
         transport::OPS,
         voxels::OPS,
