@@ -20,6 +20,7 @@ pub fn resolution(d: &HashMlpDesc, l: usize) -> u64 {
 }
 
 /// The table entry of integer corner `(i, j, k)` on level `l`.
+#[allow(clippy::identity_op)] // `i * 1`: the first prime, written as defined
 pub fn entry(d: &HashMlpDesc, l: usize, i: u64, j: u64, k: u64) -> u64 {
     let t = 1u64 << d.cfg.log2_table;
     let n1 = resolution(d, l) + 1;
@@ -64,6 +65,7 @@ pub fn encode(d: &HashMlpDesc, x: [f64; 3]) -> Vec<f64> {
 }
 
 /// The network's four raw outputs for encoding `h`.
+#[allow(clippy::needless_range_loop)] // plain index loops, on purpose
 pub fn mlp(d: &HashMlpDesc, h: &[f64]) -> Vec<f64> {
     let mut cur = h.to_vec();
     for (q, layer) in d.layers.iter().enumerate() {

@@ -160,6 +160,7 @@ impl HashMlpDesc {
     /// table_scale]` from `rand(seed, index, 0, 0)`; layer `q` weights
     /// uniform in `[-sqrt(6 / in), sqrt(6 / in)]` (He) from `rand(seed,
     /// index, q + 1, 0)`; biases 0 except the density bias `density_bias`.
+    #[allow(clippy::too_many_arguments)]
     pub fn init(
         cfg: HashConfig,
         density: DensityAct,
@@ -528,6 +529,7 @@ impl<F: Real> HashMlp<F> {
     /// Runs the network on `h`, keeping every layer's pre-activation in
     /// `z[q]`; returns the four raw outputs.
     #[inline(always)]
+    #[allow(clippy::needless_range_loop)] // index loops state the fixed matvec order
     pub fn mlp(&self, h: &[F; MAX_WIDTH], z: &mut [[F; MAX_WIDTH]; MAX_HIDDEN + 1]) -> [F; 4] {
         let mut cur = *h;
         let nl = self.layers.len();

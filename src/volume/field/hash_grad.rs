@@ -13,6 +13,7 @@ use super::hash::{sigmoid, DensityAct, HashMlp, MAX_HIDDEN, MAX_WIDTH};
 impl<F: Real> HashMlp<F> {
     /// Back-propagates `g = dL/d(sigma, rgb)` at `x`: adds `dL/dparams`
     /// into `dp` (flat order) when given; returns `dL/dx`.
+    #[allow(clippy::needless_range_loop)] // index loops mirror the forward's order
     pub fn backward(&self, x: [F; 3], g: [F; 4], dp: Option<&mut [F]>) -> [F; 3] {
         let c = self.corners(x);
         let mut h = [F::zero(); MAX_WIDTH];
