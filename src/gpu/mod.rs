@@ -12,5 +12,6 @@ pub mod kernels;
 pub mod math;
 pub mod rays;
 pub mod volume;
+pub mod voxels;
 
 pub use context::{adapters, describe, AdapterSummary, GpuContext};

@@ -17,6 +17,7 @@ mod volume_diff;
 mod volume_fit;
 mod volume_hash;
 mod voxels;
+mod voxels_gpu;
 
 use std::path::{Path, PathBuf};
 
@@ -138,6 +139,7 @@ pub fn table() -> impl Iterator<Item = &'static OpEntry> {
         pathtrace::OPS,
         transport::OPS,
         voxels::OPS,
+        voxels_gpu::OPS,
         selftest::OPS,
     ]
     .into_iter()
