@@ -6,7 +6,7 @@
 //                  CPU twin: src/volume/sample.rs `f_samp` / `walk_lattice`.
 //   f_int          per-ray integration of the packed samples, persisting alpha
 //                  and log T. CPU twin: src/volume/integrate.rs `integrate_ray`.
-// Fields: src/volume/field.rs `Field::sigma`, `ColorField::color`,
+// Fields: src/volume/field/mod.rs `Field::sigma`, `ColorField::color`,
 // `Grid::trilinear` (lerp x, then y, then z); occupancy:
 // src/volume/occupancy.rs `Occupancy::occupied`; integration state:
 // src/volume/integrate.rs `RayAcc` (Kahan sums, same order).
@@ -14,7 +14,7 @@
 // f64 per output), `gpu_vol_*_unfused_parity`, `gpu_vol_deterministic`.
 // Host side: src/gpu/volume.rs (structs `VolParams`, `GpuRayOut`, keep in sync).
 
-// Field kind codes: src/volume/field.rs `FieldKind`.
+// Field kind codes: src/volume/field/mod.rs `FieldKind`.
 const FIELD_CONSTANT: u32 = 0u;
 const FIELD_SLABS: u32 = 1u;
 const FIELD_GAUSSIAN: u32 = 2u;
@@ -110,7 +110,7 @@ struct Tri {
 }
 
 // Corner index and weights of a node-aligned trilinear lookup
-// (src/volume/field.rs `Grid::trilinear`, both OOB policies).
+// (src/volume/field/grid.rs `Grid::trilinear`, both OOB policies).
 fn tri_setup(x: vec3<f32>, bmin: vec3<f32>, scale: vec3<f32>, n: vec4<u32>) -> Tri {
     var t: Tri;
     t.inside = true;

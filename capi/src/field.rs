@@ -37,6 +37,9 @@ impl HpField {
                 a.validate(at, aabb.min, aabb.max)?;
                 Ok(FieldDesc::Analytic(a.clone()))
             }
+            HpField::Density(FieldDesc::HashMlp(_)) => Err(Fail::error(format!(
+                "{at}: hash_mlp fields are not offered through the C ABI"
+            ))),
             HpField::Color(_) => Err(Fail::error(format!(
                 "{at}: a colour field where a density field is needed"
             ))),

@@ -14,10 +14,12 @@ pub enum FieldKind {
     Shell = 3,
     Linear = 4,
     Grid = 5,
+    /// CPU only so far (no kernel: issue 19), so not in [`FieldKind::ALL`].
+    HashMlp = 6,
 }
 
 impl FieldKind {
-    /// Every kind with its WGSL constant name.
+    /// Every kind the kernels know, with its WGSL constant name.
     pub const ALL: [(FieldKind, &'static str); 6] = [
         (FieldKind::Constant, "FIELD_CONSTANT"),
         (FieldKind::Slabs, "FIELD_SLABS"),

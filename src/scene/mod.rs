@@ -10,6 +10,7 @@ pub mod pathtrace;
 pub mod rays;
 pub mod transport;
 pub mod volume;
+pub mod volume_hash;
 pub mod voxels;
 
 use std::path::{Path, PathBuf};

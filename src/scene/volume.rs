@@ -24,6 +24,7 @@
 //! | `shell` | `r0`, `r1`, `s`, `centre` (default origin) |
 //! | `linear` | `a`, `g` (`a + g . x >= 0` on the box) |
 //! | `grid` | `file` (.npy, float32/float64, (nz, ny, nx)) or `shape` [nz, ny, nx] + `from` (an analytic field sampled at the nodes); `oob` zero or clamp (default zero) |
+//! | `hash_mlp` | hash-grid + MLP: keys in `scene/volume_hash.rs`; needs `color: {type: mlp}` |
 //!
 //! Colour grids: `{type: grid, file}` ((nz, ny, nx, 3)) or `{type: grid,
 //! shape, value: [r, g, b]}`, with `oob`. Grids span the scene's `aabb`.
@@ -32,6 +33,7 @@
 use serde::Deserialize;
 
 use super::rays::{ViewSpec, VIEW_KEYS};
+use super::volume_hash::HashSpec;
 use super::SceneDoc;
 use crate::camera::Camera;
 use crate::error::{Error, Result};
@@ -110,6 +112,8 @@ pub enum FieldSpec {
         #[serde(default)]
         oob: OobSpec,
     },
+    /// Keys: `scene/volume_hash.rs`.
+    HashMlp(Box<HashSpec>),
 }
 
 /// A colour field as written in a scene.
@@ -129,6 +133,8 @@ pub enum ColorSpec {
         #[serde(default)]
         oob: OobSpec,
     },
+    /// The colour head of a `hash_mlp` field.
+    Mlp,
 }
 
 #[derive(Clone, Copy, Debug, Deserialize, PartialEq, Eq, Default)]
@@ -230,10 +236,10 @@ pub fn analytic(spec: &FieldSpec, at: &str) -> Result<Analytic> {
             s: *s,
         },
         FieldSpec::Linear { a, g } => Analytic::Linear { a: *a, g: *g },
-        FieldSpec::Grid { .. } => {
+        FieldSpec::Grid { .. } | FieldSpec::HashMlp(_) => {
             return Err(Error::invalid(
                 at,
-                "a grid cannot be sampled from another grid",
+                "a grid can only be sampled from an analytic field",
             ))
         }
     })
@@ -318,6 +324,7 @@ impl VolumeScene {
                 g.validate(&fat, true)?;
                 FieldDesc::Grid(g)
             }
+            FieldSpec::HashMlp(h) => FieldDesc::HashMlp(Box::new(h.build(doc, &fat, bmin, bmax)?)),
             other => {
                 let a = analytic(other, &fat)?;
                 a.validate(&fat, bmin, bmax)?;
@@ -327,6 +334,7 @@ impl VolumeScene {
         let cat = format!("{at} key `color`");
         let color = match &s.color {
             ColorSpec::Constant { value } => ColorDesc::Constant(*value),
+            ColorSpec::Mlp => ColorDesc::Mlp,
             ColorSpec::Grid {
                 file,
                 shape,
@@ -355,6 +363,7 @@ impl VolumeScene {
                 return Err(Error::invalid(cat, "colour must be finite"));
             }
         }
+        crate::volume::field::check_pairing(&field, &color, &cat)?;
         let params = VolumeParams {
             field,
             color,

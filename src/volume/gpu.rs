@@ -101,10 +101,20 @@ pub fn render_gpu(
         },
         Field::Linear { a, g } => GpuField::Linear { a: *a, g: *g },
         Field::Grid(g) => GpuField::Grid(gpu_grid(g, 1, "density grid")?),
+        Field::HashMlp(_) => {
+            return Err(Error::NotSupported(
+                "hash_mlp field: no GPU kernel (CPU only, issue 18)".into(),
+            ))
+        }
     };
     let (cconst, cgrid) = match &color {
         ColorField::Constant(c) => (*c, None),
         ColorField::Grid(g) => ([0.0; 3], Some(gpu_grid(g, 3, "colour grid")?)),
+        ColorField::Mlp => {
+            return Err(Error::NotSupported(
+                "mlp colour: no GPU kernel (CPU only, issue 18)".into(),
+            ))
+        }
     };
     let input = VolumeInput {
         field: gfield,

@@ -15,14 +15,14 @@ use crate::volume::VolumeParams;
 pub fn grid_shape(f: &FieldDesc) -> Option<[usize; 3]> {
     match f {
         FieldDesc::Grid(g) => Some(g.shape),
-        FieldDesc::Analytic(_) => None,
+        FieldDesc::Analytic(_) | FieldDesc::HashMlp(_) => None,
     }
 }
 
 pub fn color_shape(c: &ColorDesc) -> Option<[usize; 3]> {
     match c {
         ColorDesc::Grid(g) => Some(g.shape),
-        ColorDesc::Constant(_) => None,
+        ColorDesc::Constant(_) | ColorDesc::Mlp => None,
     }
 }
 

@@ -3,7 +3,7 @@
 //!
 //! | stage | file | in -> out |
 //! | --- | --- | --- |
-//! | fields | `field.rs` | analytic / dense grid descriptions -> `Field<F>`, `ColorField<F>` |
+//! | fields | `field/` | analytic / dense grid descriptions -> `Field<F>`, `ColorField<F>` |
 //! | `f_samp` | `sample.rs` | rays -> packed samples (`off`, `ray_id`, `t`, `dt`, `sigma`, `color`) |
 //! | `f_int` | `integrate.rs` | samples -> per-ray results + persisted `alpha`, `log_t` |
 //! | `f_img` | `compose.rs` | per-ray results -> image (sorted or scatter path) |
@@ -11,13 +11,15 @@
 //! | skipping | `occupancy.rs` | field -> occupancy bitfield |
 //! | loss, probes | `loss.rs` | the backward pass's loss weights and probe nodes |
 //! | outputs | `grad_outputs.rs` | a backward pass as named tensors |
-//! | referees | `referee/` | quadrature, closed forms, finite differences (never these stages) |
+//! | inverse rendering | `fit.rs` | target views -> fitted dense grid or hash field (Adam + `f_diff`) |
+//! | referees | `referee/` | quadrature, closed forms, finite differences, the hash encoding (never these stages) |
 //!
 //! [`render`] chains them (fused or unfused) for a typed [`VolumeParams`].
 
 pub mod compose;
 pub mod diff;
 pub mod field;
+pub mod fit;
 pub mod fused;
 pub mod gpu;
 pub mod grad_outputs;

@@ -26,6 +26,8 @@ mod transport;
 mod transport_kerr;
 mod volume;
 mod volume_diff;
+mod volume_fit;
+mod volume_hash;
 mod voxels;
 mod voxels_contour;
 mod voxels_dag;
@@ -200,6 +202,8 @@ pub fn table() -> impl Iterator<Item = &'static OpEntry> {
         rays::OPS,
         volume::OPS,
         volume_diff::OPS,
+        volume_hash::OPS,
+        volume_fit::OPS,
         pathtrace::OPS,
         transport::OPS,
         transport_kerr::OPS,

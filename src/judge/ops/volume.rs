@@ -367,7 +367,7 @@ fn op_closed_form(ctx: &OpCtx) -> Result<Outputs> {
         ColorDesc::Grid(ref g) if g.data.chunks(3).all(|v| v == &g.data[..3]) => {
             [g.data[0], g.data[1], g.data[2]]
         }
-        ColorDesc::Grid(_) => {
+        ColorDesc::Grid(_) | ColorDesc::Mlp => {
             return Err(Error::NotSupported(format!(
                 "{}: closed form needs a constant colour",
                 ctx.case_id

@@ -109,7 +109,7 @@ fn at(ctx: &OpCtx, key: &str) -> String {
 // The loss.
 
 /// The loss weights of a case (`volume::loss`), one per ray of the region.
-fn loss_weights(ctx: &OpCtx, gen: &RayGen) -> Result<LossWeights> {
+pub(super) fn loss_weights(ctx: &OpCtx, gen: &RayGen) -> Result<LossWeights> {
     let roi = gen.region();
     let (h, w) = (roi.height as usize, roi.width as usize);
     let rgb = if let Some(p) = ctx.param::<String>("grad_from")? {
@@ -160,7 +160,7 @@ fn loss_weights(ctx: &OpCtx, gen: &RayGen) -> Result<LossWeights> {
 }
 
 /// `f_diff`'s upstream gradient for the loss `w`.
-fn upstream<F: Real>(w: &LossWeights) -> Upstream<F> {
+pub(super) fn upstream<F: Real>(w: &LossWeights) -> Upstream<F> {
     let n = w.rgb.len();
     Upstream {
         rgb: w.rgb.iter().map(|c| c.map(F::of)).collect(),
@@ -300,7 +300,7 @@ fn op_grad_closed_form(ctx: &OpCtx) -> Result<Outputs> {
     let w = loss_weights(ctx, &gen)?;
     let c = match p.color {
         ColorDesc::Constant(c) => c,
-        ColorDesc::Grid(_) => {
+        ColorDesc::Grid(_) | ColorDesc::Mlp => {
             return Err(Error::NotSupported(format!(
                 "{}: closed-form gradients need a constant colour",
                 ctx.case_id

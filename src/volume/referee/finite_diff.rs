@@ -160,6 +160,8 @@ pub fn grad_fd(
                 out.tensor("dsigma_param", Tensor::real(&[v.len()], v)?);
             }
         }
+        // Hash-grid parameters: `volume.hash_grad_fd` (ops/volume_hash.rs).
+        FieldDesc::HashMlp(_) => {}
     }
     // Colour.
     match &p.color {
@@ -200,6 +202,8 @@ pub fn grad_fd(
             }
             out.tensor("dcolor_const", Tensor::real(&[3], v)?);
         }
+        // Hash-grid parameters: `volume.hash_grad_fd` (ops/volume_hash.rs).
+        ColorDesc::Mlp => {}
     }
     // Pose.
     let mut dcam = Vec::with_capacity(6);

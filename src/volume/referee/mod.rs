@@ -6,6 +6,7 @@
 //! | `quadrature.rs` | the forward pass by a plain per-pixel loop; trilinear lookups | descriptions only |
 //! | `closed_form.rs` | optical depths of the analytic fields; closed-form gradients | descriptions only |
 //! | `finite_diff.rs` | central differences of the forward render (checks `f_diff`) | the forward render, never `diff` |
+//! | `hash.rs` | the hash-grid encoding and MLP written directly in f64 (checks `field/hash.rs`) | the hash field's description |
 //!
 //! Descriptions are the parameter types (`VolumeParams`, `FieldDesc`,
 //! `Analytic`, `ColorDesc`, `GridDesc`, `Sampling`, ...), the rays, the RNG
@@ -13,6 +14,7 @@
 
 pub mod closed_form;
 pub mod finite_diff;
+pub mod hash;
 pub mod quadrature;
 
 #[cfg(test)]
@@ -49,6 +51,19 @@ mod tests {
                 "{file} uses renderer stages"
             );
         }
+    }
+
+    #[test]
+    fn hash_referee_uses_the_description_only() {
+        let mut allowed = DESCRIPTIONS.to_vec();
+        allowed.extend([
+            "crate::volume::field::hash::DensityAct",
+            "crate::volume::field::hash::HashMlpDesc",
+        ]);
+        assert_eq!(
+            foreign_paths(include_str!("hash.rs"), &allowed),
+            Vec::<String>::new()
+        );
     }
 
     #[test]

@@ -14,6 +14,7 @@ use crate::volume::VolumeParams;
 /// Density at `x`, from the parameters, written apart from `volume::field`.
 pub fn ref_sigma(f: &FieldDesc, x: [f64; 3]) -> f64 {
     match f {
+        FieldDesc::HashMlp(h) => super::hash::query(h, x).0,
         FieldDesc::Analytic(Analytic::Constant { s }) => *s,
         FieldDesc::Analytic(Analytic::Slabs {
             axis,
@@ -96,10 +97,14 @@ pub fn ref_grid(g: &GridDesc, x: [f64; 3], c: usize) -> f64 {
     v
 }
 
-pub fn ref_color(c: &ColorDesc, x: [f64; 3]) -> [f64; 3] {
-    match c {
-        ColorDesc::Constant(v) => *v,
-        ColorDesc::Grid(g) => [0, 1, 2].map(|k| ref_grid(g, x, k)),
+/// Colour at `x`; the hash field's colour head needs the density field.
+pub fn ref_color(p: &VolumeParams, x: [f64; 3]) -> [f64; 3] {
+    match (&p.color, &p.field) {
+        (ColorDesc::Constant(v), _) => *v,
+        (ColorDesc::Grid(g), _) => [0, 1, 2].map(|k| ref_grid(g, x, k)),
+        (ColorDesc::Mlp, FieldDesc::HashMlp(h)) => super::hash::query(h, x).1,
+        // Refused by `check_pairing` when the scene is built.
+        (ColorDesc::Mlp, _) => [f64::NAN; 3],
     }
 }
 
@@ -167,7 +172,7 @@ pub fn quadrature(rays: &Rays<f64>, p: &VolumeParams) -> Quadrature {
                 let x = [o[0] + t * d[0], o[1] + t * d[1], o[2] + t * d[2]];
                 let tau = ref_sigma(&p.field, x) * (b - a);
                 let alpha = -(-tau).exp_m1();
-                let col = ref_color(&p.color, x);
+                let col = ref_color(p, x);
                 for ch in 0..3 {
                     c[ch] += tr * alpha * col[ch];
                 }

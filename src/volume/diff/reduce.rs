@@ -1,0 +1,141 @@
+//! Reductions of per-sample grid gradients into nodes: the canonical sorted
+//! gather and the fixed-chunk dense scatter (module doc of `diff`).
+
+use crate::real::Real;
+
+use super::super::field::Grid;
+use super::field_grad::{corner_node, corner_weight, Cell};
+use super::Ksum;
+
+// Reductions.
+
+/// One sample's record for the sorted reduction.
+#[derive(Clone, Copy, Debug)]
+pub(super) struct GridRec<F, const C: usize> {
+    pub(super) key: u32,
+    pub(super) f: [F; 3],
+    pub(super) g: [F; C],
+}
+
+/// Cell key of a base corner: `(base + 1)` per axis in a `(n+1)^3` lattice.
+pub(super) fn cell_key<F>(g: &Grid<F>, base: [i64; 3]) -> u32 {
+    let (i, j, k) = (
+        (base[0] + 1) as usize,
+        (base[1] + 1) as usize,
+        (base[2] + 1) as usize,
+    );
+    ((k * (g.ny + 1) + j) * (g.nx + 1) + i) as u32
+}
+
+pub(super) fn push_rec<F: Real, const C: usize>(
+    g: &Grid<F>,
+    cell: Option<Cell<F>>,
+    v: [F; C],
+    out: &mut Vec<GridRec<F, C>>,
+) {
+    if let Some(c) = cell {
+        out.push(GridRec {
+            key: cell_key(g, c.base),
+            f: c.f,
+            g: v,
+        });
+    }
+}
+
+pub(super) fn scatter_dense<F: Real, const C: usize>(
+    g: &Grid<F>,
+    cell: Option<Cell<F>>,
+    v: [F; C],
+    out: &mut [F],
+) {
+    if let Some(c) = cell {
+        for d in 0..8 {
+            if let Some(node) = corner_node(g, c.base, d) {
+                let w = corner_weight(c.f, d);
+                for ch in 0..C {
+                    out[node * C + ch] += w * v[ch];
+                }
+            }
+        }
+    }
+}
+
+/// Canonical reduction: stable sort by cell, then each node sums its eight
+/// neighbouring cells (corner order 0..8, records in stable order).
+pub(super) fn reduce_sorted<F: Real, const C: usize>(
+    g: &Grid<F>,
+    mut recs: Vec<GridRec<F, C>>,
+) -> Vec<F> {
+    use rayon::prelude::*;
+    let ncell = (g.nx + 1) * (g.ny + 1) * (g.nz + 1);
+    recs.par_sort_by_key(|r| r.key);
+    let mut start = vec![0u32; ncell + 1];
+    for r in &recs {
+        start[r.key as usize + 1] += 1;
+    }
+    for i in 0..ncell {
+        start[i + 1] += start[i];
+    }
+    let nodes = g.nx * g.ny * g.nz;
+    let mut out = vec![F::zero(); nodes * C];
+    crate::parallel::par_chunks("f_diff_gather", &mut out, 4096 * C, |ci, chunk| {
+        let first = ci * 4096;
+        for (q, slot) in chunk.chunks_mut(C).enumerate() {
+            let node = first + q;
+            let (i, j, k) = (node % g.nx, node / g.nx % g.ny, node / (g.nx * g.ny));
+            let mut acc = [Ksum::<F>::default(); C];
+            for d in 0..8 {
+                let base = [
+                    i as i64 - (d & 1) as i64,
+                    j as i64 - (d >> 1 & 1) as i64,
+                    k as i64 - (d >> 2 & 1) as i64,
+                ];
+                let key = cell_key(g, base) as usize;
+                for r in &recs[start[key] as usize..start[key + 1] as usize] {
+                    let w = corner_weight(r.f, d);
+                    for (a, g) in acc.iter_mut().zip(&r.g) {
+                        a.add(w * *g);
+                    }
+                }
+            }
+            for (o, a) in slot.iter_mut().zip(&acc) {
+                *o = a.s;
+            }
+        }
+    });
+    out
+}
+
+/// Sums per-chunk dense grids in chunk order.
+pub(super) fn sum_chunks<F: Real>(parts: &[&[F]], len: usize) -> Vec<F> {
+    let mut out = vec![F::zero(); len];
+    crate::parallel::par_chunks("f_diff_chunk_sum", &mut out, 1 << 14, |ci, chunk| {
+        let first = ci << 14;
+        for (q, slot) in chunk.iter_mut().enumerate() {
+            let mut a = F::zero();
+            for p in parts {
+                a += p[first + q];
+            }
+            *slot = a;
+        }
+    });
+    out
+}
+
+/// What one unit of rays (a contiguous range) produced.
+pub(super) struct Unit<F> {
+    pub(super) cam: Vec<[f64; 6]>,
+    pub(super) param: Vec<Ksum<F>>,
+    pub(super) color_const: [Ksum<F>; 3],
+    pub(super) sig_recs: Vec<GridRec<F, 1>>,
+    pub(super) col_recs: Vec<GridRec<F, 3>>,
+    pub(super) sig_dense: Vec<F>,
+    pub(super) col_dense: Vec<F>,
+    /// dL/dparams of a hash field (flat order), dense per unit.
+    pub(super) hash_dense: Vec<F>,
+    pub(super) per_sample: Vec<(F, [F; 3])>,
+    pub(super) samples: u64,
+}
+
+/// Rays per unit of the sorted reduction.
+pub(super) const UNIT_RAYS: usize = 256;
