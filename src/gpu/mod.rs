@@ -11,6 +11,7 @@ pub mod context;
 pub mod kernels;
 pub mod math;
 pub mod rays;
+pub mod transport;
 pub mod volume;
 
 pub use context::{adapters, describe, AdapterSummary, GpuContext};

@@ -11,7 +11,9 @@
 //!   Yoshida 4, implicit midpoint), located events, the per-ray loop.
 //! - [`tasks`]: what a scene asks for (deflection lists, observer angle
 //!   scans, GRIN ray lists), fanned out over rays.
+//! - [`gpu`]: the same tasks traced by `kernels/transport.wgsl` (f32).
 
+pub mod gpu;
 pub mod grin;
 pub mod hamiltonian;
 pub mod integrate;

@@ -12,6 +12,7 @@ mod pathtrace;
 mod rays;
 mod selftest;
 mod transport;
+mod transport_gpu;
 mod volume;
 mod volume_diff;
 mod voxels;

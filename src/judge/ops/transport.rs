@@ -29,6 +29,7 @@
 use std::f64::consts::PI;
 use std::time::Instant;
 
+use super::transport_gpu as backend;
 use super::{OpCtx, OpEntry};
 use crate::error::{Error, Result};
 use crate::real::{Precision, Real};
@@ -37,9 +38,7 @@ use crate::scene::transport::{
 };
 use crate::tensor::{Outputs, Tensor};
 use crate::transport::integrate::Options;
-use crate::transport::tasks::{
-    deflection, grin_rays, observer_scan, shadow_angle, GrinRays, GrinStop, Polyline, Task,
-};
+use crate::transport::tasks::{grin_rays, shadow_angle, GrinRays, GrinStop, Polyline, Task};
 
 pub const OPS: &[OpEntry] = &[
     OpEntry { name: "transport.render", doc: "trace a transport scene: deflection/captured/steps/h_drift, or GRIN exit points and periods", params: &[], run: render },
@@ -135,7 +134,7 @@ fn run_task<F: Real>(
     let t = Instant::now();
     let (rays, steps, q): (usize, Vec<i32>, Vec<Vec<f64>>) = match task {
         Task::Deflection(d) => {
-            let r = deflection(d, opt, &ctx.budget, dump)?;
+            let r = backend::deflection(ctx, d, opt, dump)?;
             polylines(&r.polylines, out)?;
             let q = r.deflection.iter().map(|v| vec![v.f64()]).collect();
             out.tensor("deflection", vec1(r.deflection)?);
@@ -148,7 +147,7 @@ fn run_task<F: Real>(
             (d.impact.len(), r.steps, q)
         }
         Task::Observer(s) => {
-            let r = observer_scan(s, opt, &ctx.budget, dump)?;
+            let r = backend::observer_scan(ctx, s, opt, dump)?;
             polylines(&r.polylines, out)?;
             let q = r.captured.iter().map(|&c| vec![c as f64]).collect();
             out.tensor("captured", u8s(r.captured)?);
@@ -158,7 +157,7 @@ fn run_task<F: Real>(
             (s.angles_deg.len(), r.steps, q)
         }
         Task::Grin(g) => {
-            let r = grin_rays(g, opt, &ctx.budget, dump)?;
+            let r = backend::grin_rays(ctx, g, opt, dump)?;
             polylines(&r.polylines, out)?;
             let ends: Vec<Vec<f64>> = r
                 .end_point
@@ -229,7 +228,7 @@ fn render_in<F: Real>(ctx: &OpCtx, s: &TransportScene) -> Result<Outputs> {
 }
 
 fn render(ctx: &OpCtx) -> Result<Outputs> {
-    ctx.cpu_only()?;
+    backend::prepare(ctx)?;
     let s = scene(ctx)?;
     match ctx.precision {
         Precision::F32 => render_in::<f32>(ctx, &s),
