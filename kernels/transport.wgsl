@@ -1,22 +1,25 @@
 // transport.wgsl: curved rays, one thread per ray (seed 002, issue 17).
 //   trace   integrates one ray of Hamilton's equations from its start state
+//           (at most `chunk` step attempts per dispatch, state kept in
+//           `rays`; the host dispatches until every ray is done)
 //           until an event fires (located by Illinois), max_steps accepted
 //           steps, or a non-finite state; writes the final state, affine
 //           parameter, end code, step counts, max |H| and the summed
 //           embedded error estimate.
 //           CPU twin: src/transport/integrate.rs `trace` (with `rk4_step`,
 //           `dopri5_step`, `fixed_step`, `locate`, `Event::g`).
-// Systems (`SYS_*`, one `switch`): GRIN media, CPU twin
+// Systems (`SYS_*`, if-chains on the override constant `SYSTEM`; no
+// `switch`, which SPIR-V-to-NIR turns into a loop: see "Loops" below): GRIN media, CPU twin
 // src/transport/grin.rs `Medium::n2_grad` / `Hamiltonian for Medium`;
 // static spherical spacetimes, CPU twin src/transport/metric.rs
 // `Spacetime::radial` / `Hamiltonian for Spacetime`. The state is always
 // 8 floats: GRIN rays use slots 0..6 (x, p) and keep 6, 7 at zero.
 // Tiers: rk4, dopri5_fixed (Dormand-Prince 5th-order solution, fixed law),
 // dopri5 (adaptive 5(4), the CPU controller). f32 only.
-// Parity case: TESTS/transport/gpu.yaml `trgpu_*` (closed forms per tier in
+// Parity case: TESTS/transport/manifest_gpu.yaml `trgpu_*` (closed forms per tier in
 // f32, CPU f32 agreement, determinism); contract docs/transport_gpu.md.
 // Host side: src/gpu/transport.rs (structs `TraceParams` = `Params`,
-// `GpuTrace` = `TraceOut`; keep in sync).
+// `GpuTrace` = `TraceOut`, `GpuRayState` = `RayState`; keep in sync).
 
 const SYS_MINKOWSKI: u32 = 0u;
 const SYS_SCHWARZSCHILD: u32 = 1u;
@@ -41,11 +44,21 @@ const EV_APPROACH: u32 = 2u;
 const END_MAX_STEPS: i32 = -1;
 const END_NON_FINITE: i32 = -2;
 const END_STEP_UNDERFLOW: i32 = -3;
-// GPU-only: the ray left its loop without deciding (a driver's loop cap,
-// Mesa llvmpipe's 65535 back-edges per invocation). The host refuses it.
-const END_CUT: i32 = -6;
+// GPU-only: the ray is still running (more dispatches to come).
+const END_RUNNING: i32 = -6;
+
+const PHASE_FRESH: u32 = 0u;
+const PHASE_RUNNING: u32 = 1u;
+const PHASE_DONE: u32 = 2u;
 
 const EPS: f32 = 1.1920929e-7;
+
+// The system and tier are pipeline-overridable constants (one specialised
+// pipeline per pair, src/gpu/transport.rs `TracePipeline`): the driver
+// drops the branches of the other systems and tiers, which keeps the
+// compile small (every call site of rhs is inlined).
+override SYSTEM: u32 = 0u;
+override TIER: u32 = 0u;
 
 struct Params {
     // sys.x: mass / b0 / radius / n0; sys.y: radius / alpha.
@@ -60,14 +73,19 @@ struct Params {
     ev_val: vec4<f32>,
     // Per event: the approach point.
     ev_pt: array<vec4<f32>, 4>,
-    system: u32,
-    tier: u32,
+    pad_system: u32,
+    pad_tier: u32,
     law_kind: u32,
     project: u32,
     max_steps: u32,
+    // Step attempts (accepted + rejected) per dispatch.
+    chunk: u32,
     n: u32,
     n_dim: u32,
     n_events: u32,
+    pad0: u32,
+    pad1: u32,
+    pad2: u32,
     ev_kind: vec4<u32>,
     ev_index: vec4<u32>,
     ev_rising: vec4<u32>,
@@ -85,11 +103,21 @@ struct TraceOut {
     pad1: u32,
 }
 
+// A ray between dispatches: its result so far and the loop's own state.
+struct RayState {
+    t: TraceOut,
+    k1: array<f32, 8>,
+    gs: vec4<f32>,
+    h_ctl: f32,
+    just_rejected: u32,
+    phase: u32,
+    pad: u32,
+}
+
 alias State = array<f32, 8>;
 
 @group(0) @binding(0) var<uniform> P: Params;
-@group(0) @binding(1) var<storage, read> starts: array<f32>;
-@group(0) @binding(2) var<storage, read_write> out: array<TraceOut>;
+@group(0) @binding(1) var<storage, read_write> rays: array<RayState>;
 
 // Finite test on the bits: WGSL lets a compiler assume no NaN or infinity
 // in float comparisons, so `x == x` could be folded away.
@@ -97,12 +125,16 @@ fn finite(x: f32) -> bool {
     return (bitcast<u32>(x) & 0x7f800000u) != 0x7f800000u;
 }
 
+// Loops: Mesa llvmpipe breaks out of every loop once an invocation has
+// taken 65535 back-edges in total (and the results are then wrong, not
+// flagged). So one dispatch makes at most `chunk` step attempts per ray and
+// keeps the loop's state in `rays`; the host dispatches again until every
+// ray is done. The per-step code is written without loops (slots and
+// events spelled out, if-chains instead of `switch`, which SPIR-V-to-NIR
+// turns into a loop); measured on llvmpipe: 3 back-edges per RK4 step.
+
 fn all_finite(y: State) -> bool {
-    var ok = true;
-    for (var i = 0u; i < 8u; i++) {
-        ok = ok && finite(y[i]);
-    }
-    return ok;
+    return finite(y[0]) && finite(y[1]) && finite(y[2]) && finite(y[3]) && finite(y[4]) && finite(y[5]) && finite(y[6]) && finite(y[7]);
 }
 
 // (sin x, cos x) to about 1 ulp for |x| up to ~1e4. WGSL allows its
@@ -110,7 +142,7 @@ fn all_finite(y: State) -> bool {
 // equatorial photon's sin^2(theta) by 1e-3; this Cody-Waite reduction by
 // pi/2 (three-part constant) plus the Cephes single-precision minimax
 // polynomials on [-pi/4, pi/4] does not depend on the driver.
-// CPU twin: f32::sin_cos (libm). Parity case: TESTS/transport/gpu.yaml
+// CPU twin: f32::sin_cos (libm). Parity case: TESTS/transport/manifest_gpu.yaml
 // `trgpu_schw_deflection_dp45` (equatorial rays would drift off theta).
 fn sin_cos_f32(x: f32) -> vec2<f32> {
     let j = round(x * 0.63661977236758134);
@@ -147,38 +179,33 @@ fn tanhc(u: f32) -> f32 {
 fn n2_grad(x: vec3<f32>) -> vec4<f32> {
     let a = P.sys.x;
     let b = P.sys.y;
-    switch (P.system) {
-        case SYS_LUNEBURG, SYS_LUNEBURG_CORE: {
-            let r2 = x.x * x.x + x.y * x.y + x.z * x.z;
-            let rr = a * a;
-            if (P.system == SYS_LUNEBURG && !(r2 < rr)) {
-                return vec4<f32>(1.0, 0.0, 0.0, 0.0);
-            }
-            return vec4<f32>(2.0 - r2 / rr, -2.0 * x.x / rr, -2.0 * x.y / rr, -2.0 * x.z / rr);
+    if (SYSTEM == SYS_LUNEBURG || SYSTEM == SYS_LUNEBURG_CORE) {
+        let r2 = x.x * x.x + x.y * x.y + x.z * x.z;
+        let rr = a * a;
+        if (SYSTEM == SYS_LUNEBURG && !(r2 < rr)) {
+            return vec4<f32>(1.0, 0.0, 0.0, 0.0);
         }
-        case SYS_FISH_EYE: {
-            // a = n0, b = radius.
-            let q = (x.x * x.x + x.y * x.y + x.z * x.z) / (b * b);
-            let d = 1.0 + q;
-            let n2 = a * a / (d * d);
-            let k = -4.0 * a * a / (b * b * d * d * d);
-            return vec4<f32>(n2, k * x.x, k * x.y, k * x.z);
-        }
-        case SYS_FIBRE: {
-            // a = n0, b = alpha.
-            let a2 = b * b;
-            let k = a * a;
-            return vec4<f32>(k * (1.0 - a2 * (x.y * x.y + x.z * x.z)), 0.0, -2.0 * k * a2 * x.y, -2.0 * k * a2 * x.z);
-        }
-        default: {
-            // SYS_SECH: a = n0, b = alpha.
-            let rho = sqrt(x.y * x.y + x.z * x.z);
-            let u = b * rho;
-            let sech = 1.0 / cosh(u);
-            let n2 = a * a * sech * sech;
-            let k = -2.0 * b * b * n2 * tanhc(u);
-            return vec4<f32>(n2, 0.0, k * x.y, k * x.z);
-        }
+        return vec4<f32>(2.0 - r2 / rr, -2.0 * x.x / rr, -2.0 * x.y / rr, -2.0 * x.z / rr);
+    } else if (SYSTEM == SYS_FISH_EYE) {
+        // a = n0, b = radius.
+        let q = (x.x * x.x + x.y * x.y + x.z * x.z) / (b * b);
+        let d = 1.0 + q;
+        let n2 = a * a / (d * d);
+        let k = -4.0 * a * a / (b * b * d * d * d);
+        return vec4<f32>(n2, k * x.x, k * x.y, k * x.z);
+    } else if (SYSTEM == SYS_FIBRE) {
+        // a = n0, b = alpha.
+        let a2 = b * b;
+        let k = a * a;
+        return vec4<f32>(k * (1.0 - a2 * (x.y * x.y + x.z * x.z)), 0.0, -2.0 * k * a2 * x.y, -2.0 * k * a2 * x.z);
+    } else {
+        // SYS_SECH: a = n0, b = alpha.
+        let rho = sqrt(x.y * x.y + x.z * x.z);
+        let u = b * rho;
+        let sech = 1.0 / cosh(u);
+        let n2 = a * a * sech * sech;
+        let k = -2.0 * b * b * n2 * tanhc(u);
+        return vec4<f32>(n2, 0.0, k * x.y, k * x.z);
     }
 }
 
@@ -196,25 +223,21 @@ struct Radial {
 // A, dA/dr, B, dB/dr, R2, dR2/dr. CPU twin: src/transport/metric.rs
 // `Spacetime::radial`.
 fn radial(r: f32) -> Radial {
-    switch (P.system) {
-        case SYS_SCHWARZSCHILD: {
-            let m = P.sys.x;
-            let f = 1.0 - 2.0 * m / r;
-            let df = 2.0 * m / (r * r);
-            return Radial(1.0 / f, -df / (f * f), f, df, r * r, 2.0 * r);
-        }
-        case SYS_ELLIS: {
-            let b0 = P.sys.x;
-            return Radial(1.0, 0.0, 1.0, 0.0, b0 * b0 + r * r, 2.0 * r);
-        }
-        default: {
-            return Radial(1.0, 0.0, 1.0, 0.0, r * r, 2.0 * r);
-        }
+    if (SYSTEM == SYS_SCHWARZSCHILD) {
+        let m = P.sys.x;
+        let f = 1.0 - 2.0 * m / r;
+        let df = 2.0 * m / (r * r);
+        return Radial(1.0 / f, -df / (f * f), f, df, r * r, 2.0 * r);
+    } else if (SYSTEM == SYS_ELLIS) {
+        let b0 = P.sys.x;
+        return Radial(1.0, 0.0, 1.0, 0.0, b0 * b0 + r * r, 2.0 * r);
+    } else {
+        return Radial(1.0, 0.0, 1.0, 0.0, r * r, 2.0 * r);
     }
 }
 
 fn is_grin() -> bool {
-    return P.system >= SYS_LUNEBURG;
+    return SYSTEM >= SYS_LUNEBURG;
 }
 
 // dy/dlambda. CPU twins: src/transport/grin.rs `Medium::rhs`,
@@ -260,19 +283,14 @@ fn ham(y: State) -> f32 {
 
 // Step-law scale. CPU twins: `Medium::scale` (1), `Spacetime::scale`.
 fn scale(y: State) -> f32 {
-    switch (P.system) {
-        case SYS_MINKOWSKI: {
-            return abs(y[1]);
-        }
-        case SYS_SCHWARZSCHILD: {
-            return y[1] - 2.0 * P.sys.x;
-        }
-        case SYS_ELLIS: {
-            return sqrt(P.sys.x * P.sys.x + y[1] * y[1]);
-        }
-        default: {
-            return 1.0;
-        }
+    if (SYSTEM == SYS_MINKOWSKI) {
+        return abs(y[1]);
+    } else if (SYSTEM == SYS_SCHWARZSCHILD) {
+        return y[1] - 2.0 * P.sys.x;
+    } else if (SYSTEM == SYS_ELLIS) {
+        return sqrt(P.sys.x * P.sys.x + y[1] * y[1]);
+    } else {
+        return 1.0;
     }
 }
 
@@ -335,11 +353,11 @@ const E7: f32 = -1.0 / 40.0;
 
 // y + (c * h) k, slot by slot (CPU twin: `axpy` / one term of `lin`).
 fn axpy(y: State, s: f32, k: State) -> State {
-    var o = y;
-    for (var i = 0u; i < 8u; i++) {
-        o[i] += s * k[i];
-    }
-    return o;
+    return State(y[0] + s * k[0], y[1] + s * k[1], y[2] + s * k[2], y[3] + s * k[3], y[4] + s * k[4], y[5] + s * k[5], y[6] + s * k[6], y[7] + s * k[7]);
+}
+
+fn max_abs(e: State) -> f32 {
+    return max(max(max(abs(e[0]), abs(e[1])), max(abs(e[2]), abs(e[3]))), max(max(abs(e[4]), abs(e[5])), max(abs(e[6]), abs(e[7]))));
 }
 
 // One classical RK4 step. CPU twin: src/transport/integrate.rs `rk4_step`.
@@ -384,15 +402,11 @@ struct Stepped {
 // A fixed-law step of the ray's tier (dopri5 tiers: the 5th-order solution
 // and its max-norm error estimate). CPU twin: `fixed_step`.
 fn fixed_step(y: State, h: f32) -> Stepped {
-    if (P.tier == TIER_RK4) {
+    if (TIER == TIER_RK4) {
         return Stepped(rk4_step(y, h), 0.0);
     }
     let d = dopri5_step(y, rhs(y), h);
-    var e = 0.0;
-    for (var i = 0u; i < 8u; i++) {
-        e = max(e, abs(d.err[i]));
-    }
-    return Stepped(d.y5, e);
+    return Stepped(d.y5, max_abs(d.err));
 }
 
 fn law_h(s: f32) -> f32 {
@@ -407,17 +421,13 @@ fn law_h(s: f32) -> f32 {
 // g of event e. CPU twin: src/transport/integrate.rs `Event::g`.
 fn ev_g(e: u32, y: State) -> f32 {
     let v = P.ev_val[e];
-    switch (P.ev_kind[e]) {
-        case EV_COORD: {
-            return y[P.ev_index[e]] - v;
-        }
-        case EV_SPHERE: {
-            return y[0] * y[0] + y[1] * y[1] + y[2] * y[2] - v * v;
-        }
-        default: {
-            let p = P.ev_pt[e];
-            return (y[0] - p.x) * y[3] + (y[1] - p.y) * y[4] + (y[2] - p.z) * y[5];
-        }
+    if (P.ev_kind[e] == EV_COORD) {
+        return y[P.ev_index[e]] - v;
+    } else if (P.ev_kind[e] == EV_SPHERE) {
+        return y[0] * y[0] + y[1] * y[1] + y[2] * y[2] - v * v;
+    } else {
+        let p = P.ev_pt[e];
+        return (y[0] - p.x) * y[3] + (y[1] - p.y) * y[4] + (y[2] - p.z) * y[5];
     }
 }
 
@@ -473,6 +483,17 @@ fn locate(e: u32, y0: State, h: f32, g0: f32, g1: f32) -> Located {
 
 // ---- the per-ray loop ---------------------------------------------------------
 
+// Squared error of slot k of a DP45 step, scaled (CPU twin: the controller
+// sum in `trace`).
+fn err_sq(e: f32, y0: f32, y1: f32, rtol: f32) -> f32 {
+    let q = e / (P.ctl.z + rtol * max(abs(y0), abs(y1)));
+    return q * q;
+}
+
+fn gs_of(y: State) -> vec4<f32> {
+    return vec4<f32>(ev_g(0u, y), ev_g(1u, y), ev_g(2u, y), ev_g(3u, y));
+}
+
 // CPU twin: src/transport/integrate.rs `trace` (no polylines: dumps stay on
 // the CPU).
 @compute @workgroup_size(64)
@@ -481,56 +502,58 @@ fn trace(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups)
     if (i >= P.n) {
         return;
     }
-    var y: State;
-    for (var k = 0u; k < 8u; k++) {
-        y[k] = starts[8u * i + k];
-    }
-    var o: TraceOut;
-    o.lambda = 0.0;
-    o.end_code = END_CUT;
-    o.steps = 0u;
-    o.rejected = 0u;
-    o.h_drift = abs(ham(y));
-    o.err_est = 0.0;
-    var gs: array<f32, 4>;
-    for (var e = 0u; e < 4u; e++) {
-        if (e < P.n_events) {
-            gs[e] = ev_g(e, y);
-        }
-    }
-    if (!all_finite(y)) {
-        o.y = y;
-        o.end_code = END_NON_FINITE;
-        out[i] = o;
+    var s = rays[i];
+    if (s.phase == PHASE_DONE) {
         return;
     }
-    var h_ctl = 0.0;
-    if (P.tier == TIER_DP45) {
-        h_ctl = max(min(P.ctl.w, P.ctl2.y), P.ctl2.x);
+    var o = s.t;
+    var y = o.y;
+    if (s.phase == PHASE_FRESH) {
+        o.lambda = 0.0;
+        o.end_code = END_RUNNING;
+        o.steps = 0u;
+        o.rejected = 0u;
+        o.h_drift = abs(ham(y));
+        o.err_est = 0.0;
+        s.gs = gs_of(y);
+        if (!all_finite(y)) {
+            o.end_code = END_NON_FINITE;
+            s.t = o;
+            s.phase = PHASE_DONE;
+            rays[i] = s;
+            return;
+        }
+        s.h_ctl = 0.0;
+        if (TIER == TIER_DP45) {
+            s.h_ctl = max(min(P.ctl.w, P.ctl2.y), P.ctl2.x);
+        }
+        s.k1 = rhs(y);
+        s.just_rejected = 0u;
+        s.phase = PHASE_RUNNING;
     }
-    var k1 = rhs(y);
-    var just_rejected = false;
-    loop {
+    var gs = s.gs;
+    var h_ctl = s.h_ctl;
+    var k1 = s.k1;
+    var just_rejected = s.just_rejected != 0u;
+    var done = false;
+    for (var it = 0u; it < P.chunk; it++) {
         if (o.steps >= P.max_steps) {
             o.end_code = END_MAX_STEPS;
+            done = true;
             break;
         }
         var h: f32;
         var y1: State;
         var local_err: f32;
-        if (P.tier == TIER_DP45) {
+        if (TIER == TIER_DP45) {
             h = max(min(h_ctl, P.ctl.y * scale(y)), P.ctl2.x);
             let rtol = max(P.ctl.x, 8.0 * EPS);
             let d = dopri5_step(y, k1, h);
-            var acc = 0.0;
-            var emax = 0.0;
-            for (var k = 0u; k < 8u; k++) {
-                if (k < P.n_dim) {
-                    let sc = P.ctl.z + rtol * max(abs(y[k]), abs(d.y5[k]));
-                    let q = d.err[k] / sc;
-                    acc += q * q;
-                    emax = max(emax, abs(d.err[k]));
-                }
+            var acc = err_sq(d.err[0], y[0], d.y5[0], rtol) + err_sq(d.err[1], y[1], d.y5[1], rtol)
+                + err_sq(d.err[2], y[2], d.y5[2], rtol) + err_sq(d.err[3], y[3], d.y5[3], rtol)
+                + err_sq(d.err[4], y[4], d.y5[4], rtol) + err_sq(d.err[5], y[5], d.y5[5], rtol);
+            if (P.n_dim == 8u) {
+                acc += err_sq(d.err[6], y[6], d.y5[6], rtol) + err_sq(d.err[7], y[7], d.y5[7], rtol);
             }
             let err = sqrt(acc / f32(P.n_dim));
             if (!finite(err) || err > 1.0) {
@@ -543,6 +566,7 @@ fn trace(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups)
                 just_rejected = true;
                 if (h_ctl < P.ctl2.x) {
                     o.end_code = END_STEP_UNDERFLOW;
+                    done = true;
                     break;
                 }
                 continue;
@@ -559,7 +583,7 @@ fn trace(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups)
             just_rejected = false;
             k1 = d.k7;
             y1 = d.y5;
-            local_err = emax;
+            local_err = max_abs(d.err);
         } else {
             h = law_h(scale(y));
             let s = fixed_step(y, h);
@@ -568,45 +592,56 @@ fn trace(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups)
         }
         if (!all_finite(y1)) {
             o.end_code = END_NON_FINITE;
+            done = true;
             break;
         }
         if (P.project != 0u) {
             y1 = project(y1);
-            if (P.tier == TIER_DP45) {
+            if (TIER == TIER_DP45) {
                 k1 = rhs(y1);
-            }
-        }
-        // Earliest event crossed in this step, located.
-        var hit = -1;
-        var hit_theta = 0.0;
-        var hit_y: State;
-        for (var e = 0u; e < 4u; e++) {
-            let g1 = ev_g(e, y1);
-            if (e < P.n_events && fires(e, gs[e], g1)) {
-                let l = locate(e, y, h, gs[e], g1);
-                if (hit < 0 || l.theta < hit_theta) {
-                    hit = i32(e);
-                    hit_theta = l.theta;
-                    hit_y = l.y;
-                }
             }
         }
         o.steps += 1u;
         o.err_est += local_err;
-        if (hit >= 0) {
+        let g1 = gs_of(y1);
+        let fired = vec4<bool>(fires(0u, gs.x, g1.x), fires(1u, gs.y, g1.y), fires(2u, gs.z, g1.z), fires(3u, gs.w, g1.w))
+            & (vec4<u32>(0u, 1u, 2u, 3u) < vec4<u32>(P.n_events));
+        if (any(fired)) {
+            // Earliest event crossed in this step, located (the ray ends
+            // here, so this loop runs once per ray).
+            var hit = -1;
+            var hit_theta = 0.0;
+            var hit_y: State;
+            for (var e = 0u; e < 4u; e++) {
+                if (fired[e]) {
+                    let l = locate(e, y, h, gs[e], g1[e]);
+                    if (hit < 0 || l.theta < hit_theta) {
+                        hit = i32(e);
+                        hit_theta = l.theta;
+                        hit_y = l.y;
+                    }
+                }
+            }
             y = hit_y;
             o.lambda += hit_theta * h;
             o.h_drift = max(o.h_drift, abs(ham(hit_y)));
             o.end_code = hit;
+            done = true;
             break;
         }
-        for (var e = 0u; e < 4u; e++) {
-            gs[e] = ev_g(e, y1);
-        }
+        gs = g1;
         y = y1;
         o.lambda += h;
         o.h_drift = max(o.h_drift, abs(ham(y1)));
     }
     o.y = y;
-    out[i] = o;
+    s.t = o;
+    s.gs = gs;
+    s.h_ctl = h_ctl;
+    s.k1 = k1;
+    s.just_rejected = u32(just_rejected);
+    if (done) {
+        s.phase = PHASE_DONE;
+    }
+    rays[i] = s;
 }

@@ -8,14 +8,14 @@
 //! kernel's own typed parameters ([`TraceInput`]), built by
 //! `src/transport/gpu.rs` from the same start states the CPU traces (so
 //! nothing here imports the renderer). Parity cases `trgpu_*` in
-//! `TESTS/transport/gpu.yaml`; contract in `docs/transport_gpu.md`.
+//! `TESTS/transport/manifest_gpu.yaml`; contract in `docs/transport_gpu.md`.
 //! Float32 only.
 
 use bytemuck::{Pod, Zeroable};
 
-use super::buffers::{run, storage_in, storage_out, uniform, Pass};
+use super::buffers::{run, storage_out, uniform, Pass};
 use super::context::GpuContext;
-use super::kernels::pipeline;
+use super::kernels::pipeline_with;
 use crate::budget::{bytes_for, MemBudget};
 use crate::error::{Error, Result};
 
@@ -100,7 +100,7 @@ pub struct TraceInput<'a> {
 }
 
 /// Uniform of `kernels/transport.wgsl` (keep in sync with `struct Params`
-/// there): 9 vec4<f32>, 8 u32, 3 vec4<u32>; 224 bytes.
+/// there): 9 vec4<f32>, 12 u32, 3 vec4<u32>; 240 bytes.
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Pod, Zeroable)]
 pub struct TraceParams {
@@ -110,19 +110,24 @@ pub struct TraceParams {
     pub ctl2: [f32; 4],
     pub ev_val: [f32; 4],
     pub ev_pt: [[f32; 4]; 4],
+    /// The system and tier codes (the kernel reads them as its pipeline's
+    /// override constants `SYSTEM`, `TIER`; kept here for dumps).
     pub system: u32,
     pub tier: u32,
     pub law_kind: u32,
     pub project: u32,
     pub max_steps: u32,
+    /// Step attempts (accepted + rejected) per ray and dispatch.
+    pub chunk: u32,
     pub n: u32,
     pub n_dim: u32,
     pub n_events: u32,
+    pub _pad: [u32; 3],
     pub ev_kind: [u32; 4],
     pub ev_index: [u32; 4],
     pub ev_rising: [u32; 4],
 }
-const _: () = assert!(std::mem::size_of::<TraceParams>() == 224);
+const _: () = assert!(std::mem::size_of::<TraceParams>() == 240);
 
 /// One ray's result (`struct TraceOut` of the kernel; 64 bytes): the CPU's
 /// `integrate::Trace` in f32.
@@ -131,7 +136,7 @@ const _: () = assert!(std::mem::size_of::<TraceParams>() == 224);
 pub struct GpuTrace {
     pub y: [f32; 8],
     pub lambda: f32,
-    /// `integrate::End::code` (never the kernel's internal `END_CUT`).
+    /// `integrate::End::code` (never the kernel's internal `END_RUNNING`).
     pub end: i32,
     pub steps: u32,
     pub rejected: u32,
@@ -141,8 +146,35 @@ pub struct GpuTrace {
 }
 const _: () = assert!(std::mem::size_of::<GpuTrace>() == 64);
 
-/// Kernel code of a ray cut short by a driver loop cap.
-const END_CUT: i32 = -6;
+/// A ray between dispatches (`struct RayState` of the kernel; 128 bytes).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
+pub struct GpuRayState {
+    pub trace: GpuTrace,
+    pub k1: [f32; 8],
+    pub gs: [f32; 4],
+    pub h_ctl: f32,
+    pub just_rejected: u32,
+    /// 0 fresh, 1 running, 2 done.
+    pub phase: u32,
+    pub _pad: u32,
+}
+const _: () = assert!(std::mem::size_of::<GpuRayState>() == 128);
+
+const PHASE_DONE: u32 = 2;
+
+/// Step attempts per ray and dispatch. Under a driver loop cap (llvmpipe:
+/// 65535 back-edges per invocation, after which loops are cut and results
+/// silently wrong) 1024: measured 3 back-edges per RK4 step, plus at most
+/// 4 x 100 Illinois iterations at the end, so 20x margin. Elsewhere 8192,
+/// which keeps one dispatch short of display watchdogs.
+fn chunk(cap: Option<u64>) -> u32 {
+    if cap.is_some() {
+        1024
+    } else {
+        8192
+    }
+}
 
 fn law(l: GpuLaw) -> (u32, [f32; 4]) {
     match l {
@@ -152,15 +184,15 @@ fn law(l: GpuLaw) -> (u32, [f32; 4]) {
 }
 
 impl TraceParams {
-    /// The kernel's parameters for `v` (validated by [`validate`]).
-    pub fn new(v: &TraceInput) -> TraceParams {
+    /// The kernel's parameters for `v` (validated by [`validate`]), with
+    /// `loop_cap` the driver's back-edge cap per invocation, if any.
+    pub fn new(v: &TraceInput, loop_cap: Option<u64>) -> TraceParams {
         let mut p = TraceParams::zeroed();
         let (system, sys, n_dim) = v.system.code();
         (p.system, p.n_dim) = (system, n_dim);
         p.sys = [sys[0], sys[1], 0.0, 0.0];
         match v.tier {
-            GpuTier::Rk4(l) => (p.tier, (p.law_kind, p.law)) = (0, law(l)),
-            GpuTier::Dopri5Fixed(l) => (p.tier, (p.law_kind, p.law)) = (1, law(l)),
+            GpuTier::Rk4(l) | GpuTier::Dopri5Fixed(l) => (p.law_kind, p.law) = law(l),
             GpuTier::Dopri5 {
                 rtol,
                 eta,
@@ -169,13 +201,14 @@ impl TraceParams {
                 h_min,
                 h_max,
             } => {
-                p.tier = 2;
                 p.ctl = [rtol, eta, atol, h0];
                 p.ctl2 = [h_min, h_max, 0.0, 0.0];
             }
         }
+        p.tier = tier_code(&v.tier);
         p.project = v.project as u32;
         p.max_steps = v.max_steps;
+        p.chunk = chunk(loop_cap);
         p.n = v.starts.len() as u32;
         p.n_events = v.events.len() as u32;
         for (i, e) in v.events.iter().enumerate() {
@@ -256,22 +289,37 @@ fn validate(v: &TraceInput) -> Result<()> {
     Ok(())
 }
 
-/// The `trace` pipeline (built once per process by the registry).
+fn tier_code(t: &GpuTier) -> u32 {
+    match t {
+        GpuTier::Rk4(_) => 0,
+        GpuTier::Dopri5Fixed(_) => 1,
+        GpuTier::Dopri5 { .. } => 2,
+    }
+}
+
+/// The `trace` pipeline specialised for one system and tier (override
+/// constants `SYSTEM`, `TIER`; built once per process by the registry).
 pub struct TracePipeline {
     pipe: wgpu::ComputePipeline,
+    system: u32,
+    tier: u32,
 }
 
 impl TracePipeline {
-    pub fn new(ctx: &GpuContext) -> Result<TracePipeline> {
+    pub fn new(ctx: &GpuContext, system: &GpuSystem, tier: &GpuTier) -> Result<TracePipeline> {
+        let (system, tier) = (system.code().0, tier_code(tier));
+        let constants = [("SYSTEM", system as f64), ("TIER", tier as f64)];
         Ok(TracePipeline {
-            pipe: pipeline(ctx, "transport", "trace")?,
+            pipe: pipeline_with(ctx, "transport", "trace", &constants)?,
+            system,
+            tier,
         })
     }
 
     /// Traces every start of `v`: one [`GpuTrace`] per ray in input order,
-    /// and the seconds the kernel and readback took. A ray that a driver's
-    /// loop cap stopped before it ended is an error naming the ray, never
-    /// a silently short result.
+    /// and the seconds the dispatches and readbacks took. Rays advance
+    /// `chunk` step attempts per dispatch (see [`chunk`]), dispatched
+    /// until every ray is done.
     pub fn run(
         &self,
         ctx: &GpuContext,
@@ -279,35 +327,64 @@ impl TracePipeline {
         budget: &MemBudget,
     ) -> Result<(Vec<GpuTrace>, f64)> {
         validate(v)?;
+        let p = TraceParams::new(v, ctx.max_loop_iterations());
+        if (p.system, p.tier) != (self.system, self.tier) {
+            return Err(Error::invalid(
+                "gpu transport input",
+                format!(
+                    "system {} / tier {} given to the pipeline built for {} / {}",
+                    p.system, p.tier, self.system, self.tier
+                ),
+            ));
+        }
         let n = v.starts.len() as u64;
-        let out_bytes = n * std::mem::size_of::<GpuTrace>() as u64;
-        // Upload copy, result buffer and its readback.
-        budget.check("gpu transport rays", bytes_for(n, 32 + 2 * 64))?;
-        let u = uniform(ctx, "trace params", &TraceParams::new(v));
-        let s = storage_in(ctx, "trace starts", v.starts)?;
-        let o = storage_out(ctx, "trace results", out_bytes)?;
+        let bytes = n * std::mem::size_of::<GpuRayState>() as u64;
+        // The state buffer, its upload copy and one readback.
+        budget.check("gpu transport rays", bytes_for(n, 3 * 128))?;
+        let u = uniform(ctx, "trace params", &p);
+        let init: Vec<GpuRayState> = v
+            .starts
+            .iter()
+            .map(|y| GpuRayState {
+                trace: GpuTrace {
+                    y: *y,
+                    ..GpuTrace::default()
+                },
+                ..GpuRayState::default()
+            })
+            .collect();
+        let rays = storage_out(ctx, "trace rays", bytes)?;
+        ctx.queue
+            .write_buffer(&rays, 0, bytemuck::cast_slice(&init));
         let pass = Pass {
             label: "trace",
             pipeline: &self.pipe,
-            buffers: &[(0, &u), (1, &s), (2, &o)],
+            buffers: &[(0, &u), (1, &rays)],
             n,
             wg: 64,
         };
-        let rb = run(ctx, "transport trace", &[pass], &[&o])?;
-        let traces: Vec<GpuTrace> = rb.take(0, n as usize)?;
-        if let Some((i, t)) = traces.iter().enumerate().find(|(_, t)| t.end == END_CUT) {
-            let cap = ctx
-                .max_loop_iterations()
-                .map_or("its loop cap".to_string(), |c| {
-                    format!("its loop cap ({c} iterations per invocation)")
-                });
-            return Err(Error::NotSupported(format!(
-                "ray {i} was cut after {} steps by this driver's {cap}; trace fewer steps per ray \
-                 (a coarser step law) or use the CPU backend",
-                t.steps
-            )));
+        // Every dispatch advances each undecided ray by `chunk` attempts and
+        // rejections shrink the step until it underflows, so this ends; the
+        // bound only guards against a kernel that stops making progress.
+        let rounds = (v.max_steps as u64 / p.chunk as u64 + 2) * 64;
+        let mut gpu_s = 0.0;
+        for _ in 0..rounds {
+            let rb = run(
+                ctx,
+                "transport trace",
+                std::slice::from_ref(&pass),
+                &[&rays],
+            )?;
+            gpu_s += rb.gpu_s;
+            let st: Vec<GpuRayState> = rb.take(0, n as usize)?;
+            if st.iter().all(|s| s.phase == PHASE_DONE) {
+                return Ok((st.into_iter().map(|s| s.trace).collect(), gpu_s));
+            }
         }
-        Ok((traces, rb.gpu_s))
+        Err(Error::Gpu(format!(
+            "transport trace: rays still undecided after {rounds} dispatches of {} attempts",
+            p.chunk
+        )))
     }
 }
 
@@ -344,8 +421,10 @@ mod tests {
             events: &ev,
             starts: &starts,
         };
-        let p = TraceParams::new(&v);
+        let p = TraceParams::new(&v, Some(65_535));
         assert_eq!((p.system, p.n_dim, p.n, p.n_events), (13, 6, 3, 2));
+        assert_eq!(p.chunk, 1024);
+        assert_eq!(TraceParams::new(&v, None).chunk, 8192);
         assert_eq!(
             (p.ev_kind, p.ev_index, p.ev_rising),
             ([0, 2, 0, 0], [1, 0, 0, 0], [1, 0, 0, 0])

@@ -16,7 +16,7 @@ use super::integrate::{End, Event, EventKind, Options, StepLaw, Tier, Trace};
 use super::metric::Spacetime;
 use super::tasks::{
     deflection_out, deflection_setup, grin_out, grin_setup, observer_out, observer_setup,
-    observer_start, Deflection, DeflectionOut, GrinOut, GrinRays, ObserverOut, ObserverScan,
+    observer_start, Deflection, DeflectionOut, GrinOut, GrinRays, ObserverOut, ObserverScan, Task,
 };
 use crate::budget::MemBudget;
 use crate::error::{Error, Result};
@@ -173,16 +173,37 @@ fn run<F: Real, const N: usize>(
 ) -> Result<Vec<Trace<F, N>>> {
     let ev = events(ev);
     let starts: Vec<[f32; 8]> = starts.iter().map(widen).collect();
+    let tier = tier(&opt.tier)?;
     let input = TraceInput {
         system,
-        tier: tier(&opt.tier)?,
+        tier,
         project: opt.project,
         max_steps: max_steps(opt)?,
         events: &ev,
         starts: &starts,
     };
-    let (traces, _) = TracePipeline::new(ctx)?.run(ctx, &input, budget)?;
+    let (traces, _) = TracePipeline::new(ctx, &system, &tier)?.run(ctx, &input, budget)?;
     traces.iter().map(trace_of).collect()
+}
+
+/// Builds the pipeline `task` will use (so a caller can keep its compile
+/// out of a timing); refuses what the kernel cannot run.
+pub fn warm<F: Real>(
+    ctx: &GpuContext,
+    task: &Task<F>,
+    opt: &Options<F>,
+    budget: &MemBudget,
+) -> Result<()> {
+    let (system, opt) = match task {
+        Task::Deflection(d) => (spacetime(&d.spacetime), *opt),
+        Task::Observer(s) => (spacetime(&s.spacetime), *opt),
+        Task::Grin(g) => {
+            let s = grin_setup(g, opt, budget, &[])?;
+            (medium(&s.medium)?, s.opt)
+        }
+    };
+    TracePipeline::new(ctx, &system, &tier(&opt.tier)?)?;
+    Ok(())
 }
 
 /// [`super::tasks::deflection`] on the GPU.

@@ -134,6 +134,7 @@ pub fn table() -> impl Iterator<Item = &'static OpEntry> {
         volume_diff::OPS,
         pathtrace::OPS,
         transport::OPS,
+        transport_gpu::OPS,
         voxels::OPS,
         selftest::OPS,
     ]

@@ -228,8 +228,8 @@ fn render_in<F: Real>(ctx: &OpCtx, s: &TransportScene) -> Result<Outputs> {
 }
 
 fn render(ctx: &OpCtx) -> Result<Outputs> {
-    backend::prepare(ctx)?;
     let s = scene(ctx)?;
+    backend::prepare(ctx, &s)?;
     match ctx.precision {
         Precision::F32 => render_in::<f32>(ctx, &s),
         Precision::F64 => render_in::<f64>(ctx, &s),
