@@ -34,6 +34,12 @@ pub const MAX_POLYLINE: usize = 1 << 20;
 /// coordinate, signed `l` for Ellis).
 pub type Polyline<F> = (usize, Vec<[F; 4]>);
 
+/// A traced ray and its recorded points (empty unless dumped).
+pub type Traced<F, const N: usize> = (Trace<F, N>, Vec<[F; 4]>);
+
+/// A deflection list's stop events and start states.
+pub type Starts8<F> = (Vec<Event<F>>, Vec<[F; 8]>);
+
 fn cart6<F: Real>(y: &[F; 6]) -> [F; 3] {
     [y[0], y[1], y[2]]
 }
@@ -53,7 +59,7 @@ fn traced<F: Real, const N: usize, H: super::hamiltonian::Hamiltonian<F, N>>(
     ev: &[Event<F>],
     record: bool,
     cart: fn(&[F; N]) -> [F; 3],
-) -> (Trace<F, N>, Vec<[F; 4]>) {
+) -> Traced<F, N> {
     if !record {
         return (trace(sys, y0, opt, ev, |_, _| {}), Vec::new());
     }
@@ -223,7 +229,7 @@ pub fn deflection_setup<F: Real>(
     opt: &Options<F>,
     budget: &MemBudget,
     dump: &[usize],
-) -> Result<(Vec<Event<F>>, Vec<[F; 8]>)> {
+) -> Result<Starts8<F>> {
     check_dump(dump, task.impact.len(), budget)?;
     validate_radii(&task.spacetime, task.r_start, task.r_end, task.horizon_eps)?;
     if task.r_end < task.r_start {
@@ -276,7 +282,7 @@ pub fn deflection<F: Real>(
 /// polylines of the dumped rays.
 pub fn deflection_out<F: Real>(
     task: &Deflection<F>,
-    traces: Vec<(Trace<F, 8>, Vec<[F; 4]>)>,
+    traces: Vec<Traced<F, 8>>,
     dump: &[usize],
 ) -> DeflectionOut<F> {
     let mut out = DeflectionOut::default();
@@ -362,7 +368,7 @@ fn observer_trace<F: Real>(
     opt: &Options<F>,
     psi_deg: f64,
     record: bool,
-) -> (Trace<F, 8>, Vec<[F; 4]>) {
+) -> Traced<F, 8> {
     let y = observer_start(scan, psi_deg);
     traced(&scan.spacetime, y, opt, ev, record, cart8)
 }
@@ -411,7 +417,7 @@ pub fn observer_scan<F: Real>(
 
 /// An observer scan's outputs from its traces (input order).
 pub fn observer_out<F: Real>(
-    traces: Vec<(Trace<F, 8>, Vec<[F; 4]>)>,
+    traces: Vec<Traced<F, 8>>,
     dump: &[usize],
 ) -> ObserverOut<F> {
     let mut out = ObserverOut::default();
@@ -624,7 +630,7 @@ pub fn grin_rays<F: Real>(
 /// missed its lens).
 pub fn grin_out<F: Real>(
     task: &GrinRays<F>,
-    traces: Vec<Option<(Trace<F, 6>, Vec<[F; 4]>)>>,
+    traces: Vec<Option<Traced<F, 6>>>,
     dump: &[usize],
 ) -> GrinOut<F> {
     let mut out = GrinOut::default();
