@@ -4,6 +4,9 @@
 # without a Vulkan adapter it installs Mesa's software driver (lavapipe) first
 # (scripts/gpu_setup.sh). The last line printed is the judge's summary,
 # `N passed, N failed, N skipped`. Exit status: non-zero if anything failed.
+# The workspace's second package, capi/ (the C ABI), is tested by the same
+# cargo test: its C program and its Python example (numpy installed here when
+# missing) against hpjudge render.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 hpjudge="${CARGO_TARGET_DIR:-target}/release/hpjudge"
@@ -16,8 +19,13 @@ echo "== GPU adapter"
 source scripts/gpu_setup.sh
 hp_gpu_setup "$hpjudge" || echo "no GPU adapter: every GPU case will fail (--require-gpu)"
 
-echo "== cargo test --release"
-cargo test --release
+echo "== Python with numpy (the C ABI's ctypes example, issue 20)"
+if command -v python3 >/dev/null 2>&1 && ! python3 -c "import numpy" 2>/dev/null; then
+    python3 -m pip install -q numpy >&2 || echo "numpy not installed: the Python example will be skipped"
+fi
+
+echo "== cargo test --release --workspace"
+cargo test --release --workspace
 
 echo "== hpjudge run TESTS/manifest.yaml --require-gpu"
 mkdir -p out/suite

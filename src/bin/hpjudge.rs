@@ -11,19 +11,16 @@ use clap::{Parser, Subcommand};
 use hotpath::budget::{parse_size, MemBudget};
 use hotpath::error::Error;
 use hotpath::judge::artifacts::write_tensor;
-use hotpath::judge::env;
 use hotpath::judge::load::JudgeInputError;
-use hotpath::judge::ops::{self, BackendKind, OpCtx};
-use hotpath::judge::perf::{compare, read_metrics, Change, PerfReport, PerfScenarios};
-use hotpath::judge::runner::{
-    self, load_inputs, print_summary, BackendFilter, ChildEnd, RunOptions,
-};
-use hotpath::judge::scoreboard::{BackendResult, Verdict};
+use hotpath::judge::manifest::Manifest;
+use hotpath::judge::ops::{self, BackendKind};
+use hotpath::judge::perf::{compare, read_metrics, Change, PerfScenarios, ScenarioResult};
+use hotpath::judge::render::{self, RenderRequest};
+use hotpath::judge::runner::{self, load_inputs, print_summary, BackendFilter, RunOptions};
 use hotpath::judge::thresholds::Thresholds;
 use hotpath::judge::worker::{find_case, run_case, run_scenario, WorkerEnv};
+use hotpath::judge::{bless, env, perf_run};
 use hotpath::real::Precision;
-use hotpath::scene::SceneDoc;
-use hotpath::tensor::Tensor;
 
 /// hpjudge: runs hotpath's renderers on declarative cases and judges them.
 #[derive(Parser, Debug)]
@@ -49,145 +46,172 @@ struct Common {
 #[derive(Subcommand, Debug)]
 enum Cmd {
     /// Run a manifest's cases and write scoreboard.json and artifacts.
-    Run {
-        /// The manifest (default ./manifest.yaml).
-        #[arg(default_value = "manifest.yaml")]
-        manifest: PathBuf,
-        /// Output folder.
-        #[arg(long, default_value = "out")]
-        out: PathBuf,
-        /// Only cases whose id contains this.
-        #[arg(long)]
-        filter: Option<String>,
-        /// Backends to run.
-        #[arg(long, value_enum, default_value = "all")]
-        backend: BackendFilter,
-        #[command(flatten)]
-        common: Common,
-        /// Print the scoreboard as JSON on stdout instead of the table.
-        #[arg(long)]
-        json: bool,
-        /// Also write JUnit XML here.
-        #[arg(long)]
-        junit: Option<PathBuf>,
-        /// Re-run failing cases writing their inputs and per-ray tensors.
-        #[arg(long)]
-        dump_failing: bool,
-        /// A GPU case that cannot run (no adapter) fails instead of skipping.
-        #[arg(long)]
-        require_gpu: bool,
-        /// Device profile of thresholds.yaml (default: `ci` when CI is set, else `default`).
-        #[arg(long)]
-        profile: Option<String>,
-        /// thresholds.yaml (default: found in the manifest's folder or above).
-        #[arg(long)]
-        thresholds: Option<PathBuf>,
-    },
+    Run(RunArgs),
     /// Render one scene and write its output files (SCENES.md names).
-    Render {
-        scene: PathBuf,
-        #[arg(long)]
-        out: PathBuf,
-        #[arg(long, value_enum, default_value = "cpu")]
-        backend: BackendArg,
-        #[arg(long, value_enum, default_value = "f32")]
-        precision: PrecisionArg,
-        /// Override a scene parameter: key=value (dotted paths allowed).
-        #[arg(long = "set", value_name = "KEY=VALUE")]
-        set: Vec<String>,
-        /// Replay rays from a (N, 9) .npy written by --dump-failing.
-        #[arg(long)]
-        rays: Option<PathBuf>,
-        /// dL/d rgb (H, W, 3) for renderers with gradients.
-        #[arg(long)]
-        grad_from: Option<PathBuf>,
-        #[command(flatten)]
-        common: Common,
-    },
+    Render(RenderArgs),
     /// List a manifest's cases (or the operation table with --ops).
-    List {
-        #[arg(default_value = "manifest.yaml")]
-        manifest: PathBuf,
-        #[arg(long)]
-        ops: bool,
-    },
+    List(ListArgs),
     /// Validate a manifest, its includes, scenes, thresholds and perf scenarios without running.
-    Check {
-        #[arg(default_value = "manifest.yaml")]
-        manifest: PathBuf,
-        #[arg(long)]
-        profile: Option<String>,
-        #[arg(long)]
-        thresholds: Option<PathBuf>,
-    },
+    Check(CheckArgs),
     /// Describe this machine: CPU, threads, OS, GPU adapters.
-    Info {
-        #[arg(long)]
-        json: bool,
-    },
+    Info(InfoArgs),
     /// Run perf_scenarios.yaml and write perf.json (medians and spreads).
-    Perf {
-        #[arg(default_value = "perf_scenarios.yaml")]
-        scenarios: PathBuf,
-        #[arg(long, default_value = "out")]
-        out: PathBuf,
-        #[arg(long)]
-        filter: Option<String>,
-        #[arg(long)]
-        json: bool,
-        #[command(flatten)]
-        common: Common,
-    },
+    Perf(PerfArgs),
     /// Compare two perf.json or scoreboard.json files; exit 1 on a regression past the noise.
-    Compare {
-        base: PathBuf,
-        new: PathBuf,
-        /// Smallest relative change that can count.
-        #[arg(long, default_value_t = 0.10)]
-        threshold: f64,
-        /// A change must also exceed this many times the relative spread.
-        #[arg(long, default_value_t = 2.0)]
-        noise_k: f64,
-        #[arg(long)]
-        json: bool,
-    },
+    Compare(CompareArgs),
     /// Rewrite the goldens (GOLDENS/) of the selected cases from their outputs. Refused when CI is set.
-    Bless {
-        #[arg(default_value = "manifest.yaml")]
-        manifest: PathBuf,
-        #[arg(long)]
-        filter: Option<String>,
-        #[arg(long)]
-        profile: Option<String>,
-    },
+    Bless(BlessArgs),
     /// (internal) Run one case or perf scenario; used by `run` and `perf`.
     #[command(hide = true)]
-    Worker {
-        #[arg(long)]
-        manifest: Option<PathBuf>,
-        #[arg(long)]
-        case: Option<String>,
-        #[arg(long)]
-        scenarios: Option<PathBuf>,
-        #[arg(long)]
-        scenario: Option<String>,
-        #[arg(long, value_enum, default_value = "cpu")]
-        backend: BackendArg,
-        #[arg(long, default_value = "out")]
-        out: PathBuf,
-        #[arg(long)]
-        thresholds: PathBuf,
-        #[arg(long)]
-        profile: String,
-        #[arg(long)]
-        result: PathBuf,
-        #[arg(long)]
-        dump: bool,
-        #[arg(long)]
-        bless: bool,
-        #[command(flatten)]
-        common: Common,
-    },
+    Worker(WorkerArgs),
+}
+
+#[derive(clap::Args, Debug)]
+struct RunArgs {
+    /// The manifest (default ./manifest.yaml).
+    #[arg(default_value = "manifest.yaml")]
+    manifest: PathBuf,
+    /// Output folder.
+    #[arg(long, default_value = "out")]
+    out: PathBuf,
+    /// Only cases whose id contains this.
+    #[arg(long)]
+    filter: Option<String>,
+    /// Backends to run.
+    #[arg(long, value_enum, default_value = "all")]
+    backend: BackendFilter,
+    #[command(flatten)]
+    common: Common,
+    /// Print the scoreboard as JSON on stdout instead of the table.
+    #[arg(long)]
+    json: bool,
+    /// Also write JUnit XML here.
+    #[arg(long)]
+    junit: Option<PathBuf>,
+    /// Re-run failing cases writing their inputs and per-ray tensors.
+    #[arg(long)]
+    dump_failing: bool,
+    /// A GPU case that cannot run (no adapter) fails instead of skipping.
+    #[arg(long)]
+    require_gpu: bool,
+    /// Device profile of thresholds.yaml (default: `ci` when CI is set, else `default`).
+    #[arg(long)]
+    profile: Option<String>,
+    /// thresholds.yaml (default: found in the manifest's folder or above).
+    #[arg(long)]
+    thresholds: Option<PathBuf>,
+}
+
+#[derive(clap::Args, Debug)]
+struct RenderArgs {
+    scene: PathBuf,
+    #[arg(long)]
+    out: PathBuf,
+    #[arg(long, value_enum, default_value = "cpu")]
+    backend: BackendArg,
+    #[arg(long, value_enum, default_value = "f32")]
+    precision: PrecisionArg,
+    /// Override a scene parameter: key=value (dotted paths allowed).
+    #[arg(long = "set", value_name = "KEY=VALUE")]
+    set: Vec<String>,
+    /// Replay rays from a (N, 9) .npy written by --dump-failing.
+    #[arg(long)]
+    rays: Option<PathBuf>,
+    /// dL/d rgb (H, W, 3) for renderers with gradients.
+    #[arg(long)]
+    grad_from: Option<PathBuf>,
+    #[command(flatten)]
+    common: Common,
+}
+
+#[derive(clap::Args, Debug)]
+struct ListArgs {
+    #[arg(default_value = "manifest.yaml")]
+    manifest: PathBuf,
+    #[arg(long)]
+    ops: bool,
+}
+
+#[derive(clap::Args, Debug)]
+struct CheckArgs {
+    #[arg(default_value = "manifest.yaml")]
+    manifest: PathBuf,
+    #[arg(long)]
+    profile: Option<String>,
+    #[arg(long)]
+    thresholds: Option<PathBuf>,
+}
+
+#[derive(clap::Args, Debug)]
+struct InfoArgs {
+    #[arg(long)]
+    json: bool,
+}
+
+#[derive(clap::Args, Debug)]
+struct PerfArgs {
+    #[arg(default_value = "perf_scenarios.yaml")]
+    scenarios: PathBuf,
+    #[arg(long, default_value = "out")]
+    out: PathBuf,
+    #[arg(long)]
+    filter: Option<String>,
+    #[arg(long)]
+    json: bool,
+    #[command(flatten)]
+    common: Common,
+}
+
+#[derive(clap::Args, Debug)]
+struct CompareArgs {
+    base: PathBuf,
+    new: PathBuf,
+    /// Smallest relative change that can count.
+    #[arg(long, default_value_t = 0.10)]
+    threshold: f64,
+    /// A change must also exceed this many times the relative spread.
+    #[arg(long, default_value_t = 2.0)]
+    noise_k: f64,
+    #[arg(long)]
+    json: bool,
+}
+
+#[derive(clap::Args, Debug)]
+struct BlessArgs {
+    #[arg(default_value = "manifest.yaml")]
+    manifest: PathBuf,
+    #[arg(long)]
+    filter: Option<String>,
+    #[arg(long)]
+    profile: Option<String>,
+}
+
+#[derive(clap::Args, Debug)]
+struct WorkerArgs {
+    #[arg(long)]
+    manifest: Option<PathBuf>,
+    #[arg(long)]
+    case: Option<String>,
+    #[arg(long)]
+    scenarios: Option<PathBuf>,
+    #[arg(long)]
+    scenario: Option<String>,
+    #[arg(long, value_enum, default_value = "cpu")]
+    backend: BackendArg,
+    #[arg(long, default_value = "out")]
+    out: PathBuf,
+    #[arg(long)]
+    thresholds: PathBuf,
+    #[arg(long)]
+    profile: String,
+    #[arg(long)]
+    result: PathBuf,
+    #[arg(long)]
+    dump: bool,
+    #[arg(long)]
+    bless: bool,
+    #[command(flatten)]
+    common: Common,
 }
 
 #[derive(Clone, Copy, Debug, clap::ValueEnum)]
@@ -305,287 +329,64 @@ fn main() -> ExitCode {
 
 fn dispatch(cli: Cli) -> anyhow::Result<Outcome> {
     match cli.command {
-        Cmd::Run {
-            manifest,
-            out,
-            filter,
-            backend,
-            common,
-            json,
-            junit,
-            dump_failing,
-            require_gpu,
-            profile,
-            thresholds,
-        } => {
-            init_threads(common.threads);
-            let opts = RunOptions {
-                manifest,
-                out,
-                filter,
-                backend,
-                threads: common.threads,
-                seed: common.seed,
-                json,
-                junit,
-                dump_failing,
-                require_gpu,
-                profile,
-                thresholds,
-                mem_limit: common.mem_limit,
-            };
-            let board = runner::run(&opts)?;
-            if json {
-                println!("{}", serde_json::to_string_pretty(&board)?);
-            } else {
-                print_summary(&board, &opts.out);
-            }
-            Ok(if board.summary.all_good() {
-                Outcome::Ok
-            } else {
-                Outcome::Failed
-            })
-        }
-        Cmd::Render {
-            scene,
-            out,
-            backend,
-            precision,
-            set,
-            rays,
-            grad_from,
-            common,
-        } => {
-            init_threads(common.threads);
-            render(
-                &scene,
-                &out,
-                backend.into(),
-                precision.into(),
-                &set,
-                rays.as_deref(),
-                grad_from.as_deref(),
-                &common,
-            )
-        }
-        Cmd::List { manifest, ops } => {
-            if ops {
-                for e in ops::table() {
-                    println!("{:<32} {}", e.name, e.doc);
-                }
-                return Ok(Outcome::Ok);
-            }
-            let m = hotpath::judge::manifest::Manifest::load(&manifest)?;
-            for c in &m.cases {
-                let b: Vec<&str> = c.case.backends.iter().map(|b| b.name()).collect();
-                println!(
-                    "{:<44} {:<28} {:<8} {:?}  {}",
-                    c.case.id,
-                    c.case.op,
-                    b.join(","),
-                    c.case.size,
-                    c.at()
-                );
-            }
-            Ok(Outcome::Ok)
-        }
-        Cmd::Check {
-            manifest,
-            profile,
-            thresholds,
-        } => {
-            let i = load_inputs(&manifest, thresholds.as_deref(), profile.as_deref())?;
-            println!(
-                "ok: {} cases, {} perf scenarios, profile {}, thresholds sha256 {}",
-                i.manifest.cases.len(),
-                i.perf.scenarios.len(),
-                i.thresholds.profile_name,
-                &i.thresholds.sha256[..16]
-            );
-            Ok(Outcome::Ok)
-        }
-        Cmd::Info { json } => {
-            let gpu = hotpath::gpu::describe();
-            let v = env::describe(
-                rayon::current_num_threads(),
-                0,
-                "-",
-                "-",
-                "-",
-                Some(gpu.clone()),
-            );
-            if json {
-                println!("{}", serde_json::to_string_pretty(&v)?);
-                return Ok(Outcome::Ok);
-            }
-            println!("hpjudge {}", env::VERSION);
-            println!(
-                "cpu:      {} ({} logical CPUs)",
-                env::cpu_model(),
-                env::logical_cpus()
-            );
-            println!("os:       {} {}", env::os_name(), std::env::consts::ARCH);
-            println!(
-                "backends: {} (WGPU_BACKEND)",
-                gpu["backends"].as_str().unwrap_or("?")
-            );
-            let adapters = hotpath::gpu::adapters();
-            if adapters.is_empty() {
-                println!("gpu:      no adapter on these backends (install a Vulkan driver, e.g. mesa-vulkan-drivers)");
-            }
-            for a in &adapters {
-                println!(
-                    "gpu:      {} [{}, {}] driver {} {}",
-                    a.name, a.backend, a.device_type, a.driver, a.driver_info
-                );
-            }
-            if let Some(e) = gpu["error"].as_str() {
-                println!("gpu error: {e}");
-            }
-            Ok(Outcome::Ok)
-        }
-        Cmd::Perf {
-            scenarios,
-            out,
-            filter,
-            json,
-            common,
-        } => perf(&scenarios, &out, filter.as_deref(), json, &common),
-        Cmd::Compare {
-            base,
-            new,
-            threshold,
-            noise_k,
-            json,
-        } => {
-            let (b, n) = (read_metrics(&base)?, read_metrics(&new)?);
-            let rows = compare(&b, &n, threshold, noise_k);
-            let regressions = rows
-                .iter()
-                .filter(|r| r.verdict == Change::Regression)
-                .count();
-            if json {
-                println!("{}", serde_json::to_string_pretty(&rows)?);
-            } else {
-                println!(
-                    "{:<52} {:>12} {:>12} {:>8} {:>7}  verdict",
-                    "metric", "base", "new", "change", "noise"
-                );
-                for r in &rows {
-                    println!(
-                        "{:<52} {:>12.4e} {:>12.4e} {:>7.1}% {:>6.1}%  {:?}",
-                        r.key,
-                        r.base,
-                        r.new,
-                        100.0 * r.change,
-                        100.0 * r.noise,
-                        r.verdict
-                    );
-                }
-                println!("{} metrics compared, {regressions} regressions (threshold {threshold}, noise x{noise_k})", rows.len());
-            }
-            Ok(if regressions == 0 {
-                Outcome::Ok
-            } else {
-                Outcome::Failed
-            })
-        }
-        Cmd::Bless {
-            manifest,
-            filter,
-            profile,
-        } => bless(&manifest, filter.as_deref(), profile.as_deref()),
-        Cmd::Worker {
-            manifest,
-            case,
-            scenarios,
-            scenario,
-            backend,
-            out,
-            thresholds,
-            profile,
-            result,
-            dump,
-            bless,
-            common,
-        } => {
-            init_threads(common.threads);
-            let th = Thresholds::load(&thresholds, &profile)?;
-            let root = thresholds.parent().unwrap_or(Path::new(".")).to_path_buf();
-            let perf_path = root.join("perf_scenarios.yaml");
-            let perf = match &scenarios {
-                Some(p) => PerfScenarios::load(p)?,
-                None if perf_path.is_file() => PerfScenarios::load(&perf_path)?,
-                None => PerfScenarios::default(),
-            };
-            let goldens = root.join("GOLDENS");
-            let wenv = WorkerEnv {
-                thresholds: &th,
-                perf: &perf,
-                out: &out,
-                goldens: &goldens,
-                seed: common.seed,
-                budget: budget(&common),
-                dump,
-                bless,
-            };
-            let text = match (manifest, case, scenario) {
-                (Some(m), Some(c), None) => {
-                    let lc = find_case(&m, &c).map_err(anyhow::Error::msg)?;
-                    serde_json::to_string(&run_case(&lc, backend.into(), &wenv))?
-                }
-                (None, None, Some(s)) => {
-                    let sc = perf
-                        .find(&s)
-                        .with_context(|| format!("no perf scenario {s:?}"))?;
-                    serde_json::to_string(&run_scenario(sc, &perf, &wenv))?
-                }
-                _ => bail!("worker needs --manifest and --case, or --scenario"),
-            };
-            std::fs::write(&result, text)
-                .with_context(|| format!("writing {}", result.display()))?;
-            Ok(Outcome::Ok)
-        }
+        Cmd::Run(a) => cmd_run(a),
+        Cmd::Render(a) => cmd_render(&a),
+        Cmd::List(a) => cmd_list(&a),
+        Cmd::Check(a) => cmd_check(&a),
+        Cmd::Info(a) => cmd_info(&a),
+        Cmd::Perf(a) => cmd_perf(&a),
+        Cmd::Compare(a) => cmd_compare(&a),
+        Cmd::Bless(a) => cmd_bless(&a),
+        Cmd::Worker(a) => cmd_worker(&a),
     }
 }
 
-#[allow(clippy::too_many_arguments)]
-fn render(
-    scene: &Path,
-    out: &Path,
-    backend: BackendKind,
-    precision: Precision,
-    set: &[String],
-    rays: Option<&Path>,
-    grad_from: Option<&Path>,
-    common: &Common,
-) -> anyhow::Result<Outcome> {
-    let doc = SceneDoc::load(scene, set)?;
-    let renderer = doc.renderer()?.to_string();
-    let name = format!("{renderer}.render");
-    let op = ops::find(&name).ok_or_else(|| {
-        Error::NotSupported(format!("renderer {renderer:?} has no `render` operation"))
-    })?;
-    let rays_t = rays.map(Tensor::read_npy).transpose()?;
-    let mut params = serde_yaml::Mapping::new();
-    if let Some(g) = grad_from {
-        params.insert("grad_from".into(), g.display().to_string().into());
-    }
-    let params = serde_yaml::Value::Mapping(params);
-    let root = scene.parent().unwrap_or(Path::new(".")).to_path_buf();
-    let ctx = OpCtx {
-        case_id: "render",
-        scene: Some(&doc),
-        params: &params,
-        backend,
-        precision,
-        seed: common.seed,
-        budget: budget(common),
-        dump: false,
-        rays: rays_t.as_ref(),
-        root: &root,
+/// `hpjudge run`: the suite, its table (or JSON) and the summary line.
+fn cmd_run(a: RunArgs) -> anyhow::Result<Outcome> {
+    init_threads(a.common.threads);
+    let opts = RunOptions {
+        manifest: a.manifest,
+        out: a.out,
+        filter: a.filter,
+        backend: a.backend,
+        threads: a.common.threads,
+        seed: a.common.seed,
+        json: a.json,
+        junit: a.junit,
+        dump_failing: a.dump_failing,
+        require_gpu: a.require_gpu,
+        profile: a.profile,
+        thresholds: a.thresholds,
+        mem_limit: a.common.mem_limit,
     };
-    let outputs = (op.run)(&ctx)?;
+    let board = runner::run(&opts)?;
+    if opts.json {
+        println!("{}", serde_json::to_string_pretty(&board)?);
+    } else {
+        print_summary(&board, &opts.out);
+    }
+    Ok(if board.summary.all_good() {
+        Outcome::Ok
+    } else {
+        Outcome::Failed
+    })
+}
+
+/// `hpjudge render`: one scene through its renderer's `render` operation;
+/// prints the files written, metrics on stderr.
+fn cmd_render(a: &RenderArgs) -> anyhow::Result<Outcome> {
+    init_threads(a.common.threads);
+    let outputs = render::render(&RenderRequest {
+        scene: &a.scene,
+        backend: a.backend.into(),
+        precision: a.precision.into(),
+        set: &a.set,
+        rays: a.rays.as_deref(),
+        grad_from: a.grad_from.as_deref(),
+        seed: a.common.seed,
+        budget: budget(&a.common),
+    })?;
+    let out = &a.out;
     std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
     for (n, t) in &outputs.tensors {
         for p in write_tensor(out, n, t)? {
@@ -598,83 +399,104 @@ fn render(
     Ok(Outcome::Ok)
 }
 
-fn perf(
-    scenarios: &Path,
-    out: &Path,
-    filter: Option<&str>,
-    json: bool,
-    common: &Common,
-) -> anyhow::Result<Outcome> {
-    let perf = PerfScenarios::load(scenarios)?;
-    let root = scenarios.parent().unwrap_or(Path::new("."));
-    let root = if root.as_os_str().is_empty() {
-        Path::new(".")
-    } else {
-        root
-    };
-    let th_path = root.join("thresholds.yaml");
-    let (tf, _): (hotpath::judge::thresholds::ThresholdsFile, String) =
-        hotpath::judge::load::load_yaml_typed(&th_path)?;
-    let (profile, _) =
-        hotpath::judge::thresholds::pick_profile(&tf, std::env::var_os("CI").is_some(), None);
-    let th = Thresholds::load(&th_path, &profile)?;
-    std::fs::create_dir_all(out)?;
-    let mut results = Vec::new();
-    for s in perf
-        .scenarios
-        .iter()
-        .filter(|s| filter.is_none_or(|f| s.id.contains(f)))
-    {
-        let dir = out.join("perf").join(&s.id);
-        std::fs::create_dir_all(&dir)?;
-        let args: Vec<String> = vec![
-            "--scenarios".into(),
-            scenarios.display().to_string(),
-            "--scenario".into(),
-            s.id.clone(),
-            "--thresholds".into(),
-            th_path.display().to_string(),
-            "--profile".into(),
-            profile.clone(),
-            "--out".into(),
-            out.display().to_string(),
-            "--threads".into(),
-            common.threads.to_string(),
-            "--seed".into(),
-            common.seed.to_string(),
-        ];
-        let limit = th
-            .timeout("perf")
-            .or_else(|| th.timeout("default"))
-            .unwrap_or(600.0);
-        let r = match runner::run_child(
-            &args,
-            limit,
-            &dir.join("worker.log"),
-            &dir.join("result.json"),
-        ) {
-            ChildEnd::Done(t) => serde_json::from_str(&t)?,
-            ChildEnd::TimedOut => failed_scenario(s, format!("timed out after {limit:.0} s")),
-            ChildEnd::Failed(why) => failed_scenario(s, why),
-        };
-        if !json {
-            print_scenario(&r);
+/// `hpjudge list`: a manifest's cases, or the operation table.
+fn cmd_list(a: &ListArgs) -> anyhow::Result<Outcome> {
+    if a.ops {
+        for e in ops::table() {
+            println!("{:<32} {}", e.name, e.doc);
         }
-        results.push(r);
+        return Ok(Outcome::Ok);
     }
-    let threads = if common.threads > 0 {
-        common.threads
-    } else {
+    let m = Manifest::load(&a.manifest)?;
+    for c in &m.cases {
+        let b: Vec<&str> = c.case.backends.iter().map(|b| b.name()).collect();
+        println!(
+            "{:<44} {:<28} {:<8} {:?}  {}",
+            c.case.id,
+            c.case.op,
+            b.join(","),
+            c.case.size,
+            c.at()
+        );
+    }
+    Ok(Outcome::Ok)
+}
+
+/// `hpjudge check`: loads and validates everything a run would, runs nothing.
+fn cmd_check(a: &CheckArgs) -> anyhow::Result<Outcome> {
+    let i = load_inputs(&a.manifest, a.thresholds.as_deref(), a.profile.as_deref())?;
+    println!(
+        "ok: {} cases, {} perf scenarios, profile {}, thresholds sha256 {}",
+        i.manifest.cases.len(),
+        i.perf.scenarios.len(),
+        i.thresholds.profile_name,
+        &i.thresholds.sha256[..16]
+    );
+    Ok(Outcome::Ok)
+}
+
+/// `hpjudge info`: CPU, threads, OS and GPU adapters.
+fn cmd_info(a: &InfoArgs) -> anyhow::Result<Outcome> {
+    let gpu = hotpath::gpu::describe();
+    let v = env::describe(
+        rayon::current_num_threads(),
+        0,
+        "-",
+        "-",
+        "-",
+        Some(gpu.clone()),
+    );
+    if a.json {
+        println!("{}", serde_json::to_string_pretty(&v)?);
+        return Ok(Outcome::Ok);
+    }
+    println!("hpjudge {}", env::VERSION);
+    println!(
+        "cpu:      {} ({} logical CPUs)",
+        env::cpu_model(),
         env::logical_cpus()
-    };
-    let report = PerfReport {
-        schema_version: 1,
-        environment: env::describe(threads, common.seed, &profile, "-", &th.sha256, None),
-        scenarios: results,
-    };
-    let path = out.join("perf.json");
-    std::fs::write(&path, serde_json::to_string_pretty(&report)? + "\n")?;
-    if json {
+    );
+    println!("os:       {} {}", env::os_name(), std::env::consts::ARCH);
+    println!(
+        "backends: {} (WGPU_BACKEND)",
+        gpu["backends"].as_str().unwrap_or("?")
+    );
+    let adapters = hotpath::gpu::adapters();
+    if adapters.is_empty() {
+        println!("gpu:      no adapter on these backends (install a Vulkan driver, e.g. mesa-vulkan-drivers)");
+    }
+    for a in &adapters {
+        println!(
+            "gpu:      {} [{}, {}] driver {} {}",
+            a.name, a.backend, a.device_type, a.driver, a.driver_info
+        );
+    }
+    if let Some(e) = gpu["error"].as_str() {
+        println!("gpu error: {e}");
+    }
+    Ok(Outcome::Ok)
+}
+
+/// `hpjudge perf`: every scenario in a worker, perf.json written.
+fn cmd_perf(a: &PerfArgs) -> anyhow::Result<Outcome> {
+    let (report, path) = perf_run::run_scenarios(
+        &a.scenarios,
+        &a.out,
+        a.filter.as_deref(),
+        a.common.threads,
+        a.common.seed,
+        |r| {
+            if !a.json {
+                print_scenario(r);
+            }
+        },
+    )
+    .map_err(|e| match e {
+        // Unusable input keeps its type: exit code 2.
+        perf_run::PerfRunError::Input(i) => anyhow::Error::new(i),
+        e => anyhow::Error::new(e),
+    })?;
+    if a.json {
         println!("{}", serde_json::to_string_pretty(&report)?);
     } else {
         println!("perf report: {}", path.display());
@@ -691,21 +513,7 @@ fn perf(
     })
 }
 
-fn failed_scenario(
-    s: &hotpath::judge::perf::Scenario,
-    e: String,
-) -> hotpath::judge::perf::ScenarioResult {
-    hotpath::judge::perf::ScenarioResult {
-        id: s.id.clone(),
-        op: s.op.clone(),
-        backend: s.backend,
-        precision: s.precision,
-        metrics: Default::default(),
-        error: Some(e),
-    }
-}
-
-fn print_scenario(r: &hotpath::judge::perf::ScenarioResult) {
+fn print_scenario(r: &ScenarioResult) {
     if let Some(e) = &r.error {
         println!("{:<32} ERROR {e}", r.id);
         return;
@@ -722,43 +530,98 @@ fn print_scenario(r: &hotpath::judge::perf::ScenarioResult) {
     }
 }
 
-fn bless(manifest: &Path, filter: Option<&str>, profile: Option<&str>) -> anyhow::Result<Outcome> {
+/// `hpjudge compare`: each metric's change; exit 1 on a regression.
+fn cmd_compare(a: &CompareArgs) -> anyhow::Result<Outcome> {
+    let (threshold, noise_k) = (a.threshold, a.noise_k);
+    let (b, n) = (read_metrics(&a.base)?, read_metrics(&a.new)?);
+    let rows = compare(&b, &n, threshold, noise_k);
+    let regressions = rows
+        .iter()
+        .filter(|r| r.verdict == Change::Regression)
+        .count();
+    if a.json {
+        println!("{}", serde_json::to_string_pretty(&rows)?);
+    } else {
+        println!(
+            "{:<52} {:>12} {:>12} {:>8} {:>7}  verdict",
+            "metric", "base", "new", "change", "noise"
+        );
+        for r in &rows {
+            println!(
+                "{:<52} {:>12.4e} {:>12.4e} {:>7.1}% {:>6.1}%  {:?}",
+                r.key,
+                r.base,
+                r.new,
+                100.0 * r.change,
+                100.0 * r.noise,
+                r.verdict
+            );
+        }
+        println!("{} metrics compared, {regressions} regressions (threshold {threshold}, noise x{noise_k})", rows.len());
+    }
+    Ok(if regressions == 0 {
+        Outcome::Ok
+    } else {
+        Outcome::Failed
+    })
+}
+
+/// `hpjudge bless`: rewrites the selected cases' goldens (refused under CI).
+fn cmd_bless(a: &BlessArgs) -> anyhow::Result<Outcome> {
     if std::env::var_os("CI").is_some() {
         bail!("bless refuses to run when CI is set: goldens change only on request, reviewed");
     }
-    let inputs = load_inputs(manifest, None, profile)?;
-    let goldens = inputs.root.join("GOLDENS");
-    let out = std::env::temp_dir().join(format!("hpjudge-bless-{}", std::process::id()));
-    let mut wrote = 0;
-    for lc in inputs
-        .manifest
-        .cases
-        .iter()
-        .filter(|c| filter.is_none_or(|f| c.case.id.contains(f)))
-    {
-        if lc.case.asserts.iter().all(|a| a.goldens().is_empty()) {
-            continue;
-        }
-        let wenv = WorkerEnv {
-            thresholds: &inputs.thresholds,
-            perf: &inputs.perf,
-            out: &out,
-            goldens: &goldens,
-            seed: 0,
-            budget: MemBudget::from_machine(),
-            dump: false,
-            bless: true,
-        };
-        let r: BackendResult = run_case(lc, BackendKind::Cpu, &wenv);
-        if r.verdict == Verdict::Error {
-            bail!("{}: {}", lc.case.id, r.reason);
-        }
-        for a in &r.artifacts {
-            println!("blessed {a}");
-            wrote += 1;
-        }
-    }
+    let wrote = bless::bless(
+        &a.manifest,
+        a.filter.as_deref(),
+        a.profile.as_deref(),
+        |f| println!("blessed {f}"),
+    )
+    .map_err(|e| match e {
+        // Unusable input keeps its type: exit code 2.
+        bless::BlessError::Input(i) => anyhow::Error::new(i),
+        e => anyhow::Error::msg(e.to_string()),
+    })?;
     println!("{wrote} golden files written; review them with git diff before committing");
+    Ok(Outcome::Ok)
+}
+
+/// `hpjudge worker` (internal): one case or scenario, its result as JSON in `--result`.
+fn cmd_worker(a: &WorkerArgs) -> anyhow::Result<Outcome> {
+    init_threads(a.common.threads);
+    let th = Thresholds::load(&a.thresholds, &a.profile)?;
+    let root = a.thresholds.parent().unwrap_or(Path::new(".")).to_path_buf();
+    let perf_path = root.join("perf_scenarios.yaml");
+    let perf = match &a.scenarios {
+        Some(p) => PerfScenarios::load(p)?,
+        None if perf_path.is_file() => PerfScenarios::load(&perf_path)?,
+        None => PerfScenarios::default(),
+    };
+    let goldens = root.join("GOLDENS");
+    let wenv = WorkerEnv {
+        thresholds: &th,
+        perf: &perf,
+        out: &a.out,
+        goldens: &goldens,
+        seed: a.common.seed,
+        budget: budget(&a.common),
+        dump: a.dump,
+        bless: a.bless,
+    };
+    let text = match (&a.manifest, &a.case, &a.scenario) {
+        (Some(m), Some(c), None) => {
+            let lc = find_case(m, c).map_err(anyhow::Error::msg)?;
+            serde_json::to_string(&run_case(&lc, a.backend.into(), &wenv))?
+        }
+        (None, None, Some(s)) => {
+            let sc = perf
+                .find(s)
+                .with_context(|| format!("no perf scenario {s:?}"))?;
+            serde_json::to_string(&run_scenario(sc, &perf, &wenv))?
+        }
+        _ => bail!("worker needs --manifest and --case, or --scenario"),
+    };
+    std::fs::write(&a.result, text).with_context(|| format!("writing {}", a.result.display()))?;
     Ok(Outcome::Ok)
 }
 

@@ -36,6 +36,7 @@ pub const KERNELS: &[Kernel] = &[
     kernel!("rng"),
     kernel!("expm1"),
     kernel!("volume"),
+    kernel!("voxels"),
     kernel!("transport"),
 ];
 

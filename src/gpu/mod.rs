@@ -13,5 +13,6 @@ pub mod math;
 pub mod rays;
 pub mod transport;
 pub mod volume;
+pub mod voxels;
 
 pub use context::{adapters, describe, AdapterSummary, GpuContext};

@@ -6,6 +6,9 @@
 //! | `manifest.rs` | cases, includes, validation on load |
 //! | `thresholds.rs` | tolerances, gates, time limits, device profiles |
 //! | `perf.rs` | perf scenarios, noise-aware `compare` |
+//! | `perf_run.rs` | `hpjudge perf`: scenarios in workers, perf.json |
+//! | `render.rs` | `hpjudge render`: one scene, outside a manifest |
+//! | `bless.rs` | `hpjudge bless`: goldens rewritten on request |
 //! | `asserts.rs` | the closed set of assertions and their checks |
 //! | `ops/` | the table of operations cases name |
 //! | `worker.rs` | one case on one backend, in a child process |
@@ -14,12 +17,15 @@
 
 pub mod artifacts;
 pub mod asserts;
+pub mod bless;
 pub mod env;
 pub mod junit;
 pub mod load;
 pub mod manifest;
 pub mod ops;
 pub mod perf;
+pub mod perf_run;
+pub mod render;
 pub mod runner;
 pub mod scoreboard;
 pub mod stats;

@@ -23,6 +23,10 @@
 //! finest-level voxel that contains the hit point, and the normal is the
 //! outward normal of the face the ray entered through, zero when it started
 //! inside. The loop allocates nothing.
+//!
+//! GPU twin: `kernels/voxels.wgsl` `esvo_cast` (entries `cast_camera`,
+//! `cast_rays`), operation for operation in f32; parity cases
+//! `voxel_gpu_*` in `TESTS/voxels/manifest_gpu.yaml`.
 
 use crate::real::Real;
 

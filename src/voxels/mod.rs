@@ -5,6 +5,7 @@
 //! 003; SCENES.md "Sparse voxels" fixes voxel indexing and outputs.
 
 pub mod cast;
+pub mod gpu;
 pub mod octree;
 pub mod raysets;
 pub mod referee;

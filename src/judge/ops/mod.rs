@@ -16,6 +16,7 @@ mod transport_gpu;
 mod volume;
 mod volume_diff;
 mod voxels;
+mod voxels_gpu;
 
 use std::path::{Path, PathBuf};
 
@@ -136,6 +137,7 @@ pub fn table() -> impl Iterator<Item = &'static OpEntry> {
         transport::OPS,
         transport_gpu::OPS,
         voxels::OPS,
+        voxels_gpu::OPS,
         selftest::OPS,
     ]
     .into_iter()

@@ -18,7 +18,7 @@
 
 use std::time::Instant;
 
-use super::{OpCtx, OpEntry};
+use super::{BackendKind, OpCtx, OpEntry};
 use crate::budget::bytes_for;
 use crate::error::{Error, Result};
 use crate::parallel::par_collect;
@@ -61,27 +61,31 @@ pub const OPS: &[OpEntry] = &[
     },
 ];
 
-fn load(ctx: &OpCtx) -> Result<VoxelScene> {
+pub(super) fn load(ctx: &OpCtx) -> Result<VoxelScene> {
     crate::scene::voxels::parse(ctx.scene()?)
 }
 
 /// A batch of rays in precision `F` and the shape of its per-ray tensors.
-struct Batch<F> {
-    o: Vec<[F; 3]>,
-    d: Vec<[F; 3]>,
-    shape: Vec<usize>,
-    near: f64,
-    far: f64,
-    kind: Option<Vec<i32>>,
+pub(super) struct Batch<F> {
+    pub(super) o: Vec<[F; 3]>,
+    pub(super) d: Vec<[F; 3]>,
+    pub(super) shape: Vec<usize>,
+    pub(super) near: f64,
+    pub(super) far: f64,
+    pub(super) kind: Option<Vec<i32>>,
 }
 
-fn from64<F: Real>(rays: Vec<([f64; 3], [f64; 3])>) -> (Vec<[F; 3]>, Vec<[F; 3]>) {
+pub(super) fn from64<F: Real>(rays: Vec<([f64; 3], [f64; 3])>) -> (Vec<[F; 3]>, Vec<[F; 3]>) {
     rays.into_iter()
         .map(|(o, d)| (o.map(F::of), d.map(F::of)))
         .unzip()
 }
 
-fn camera_batch<F: Real>(ctx: &OpCtx, sc: &VoxelScene, size: Option<u32>) -> Result<Batch<F>> {
+pub(super) fn camera_batch<F: Real>(
+    ctx: &OpCtx,
+    sc: &VoxelScene,
+    size: Option<u32>,
+) -> Result<Batch<F>> {
     let (cam, mut gen): (_, RayGen) = sc.view.build()?;
     let cam = match size {
         Some(s) => {
@@ -104,7 +108,7 @@ fn camera_batch<F: Real>(ctx: &OpCtx, sc: &VoxelScene, size: Option<u32>) -> Res
     })
 }
 
-fn batch<F: Real>(ctx: &OpCtx, sc: &VoxelScene) -> Result<Batch<F>> {
+pub(super) fn batch<F: Real>(ctx: &OpCtx, sc: &VoxelScene) -> Result<Batch<F>> {
     let src: String = ctx.param_or("rays", "camera".to_string())?;
     let seed: u32 = ctx.param_or("seed", ctx.seed)?;
     let count: u32 = ctx.param_or("count", 4096)?;
@@ -163,7 +167,7 @@ fn batch<F: Real>(ctx: &OpCtx, sc: &VoxelScene) -> Result<Batch<F>> {
 
 /// The batch in the (N, 9) dump layout of `Rays::to_tensor` (`--dump-failing`;
 /// `render --rays` replays it). An infinite far is written as 1e30.
-fn dump_rays<F: Real>(b: &Batch<F>) -> Result<Tensor> {
+pub(super) fn dump_rays<F: Real>(b: &Batch<F>) -> Result<Tensor> {
     let n = b.o.len();
     let far = if b.far.is_finite() { b.far } else { 1e30 };
     Rays {
@@ -197,7 +201,7 @@ fn leaf_key(leaf: &[[i32; 3]], depth: u32) -> Vec<f64> {
         .collect()
 }
 
-fn put_hits<F: Real>(
+pub(super) fn put_hits<F: Real>(
     out: &mut Outputs,
     h: VoxelHits<F>,
     shape: &[usize],
@@ -232,7 +236,7 @@ fn put_hits<F: Real>(
     Ok(())
 }
 
-fn build_metrics(out: &mut Outputs, tree: &Octree) {
+pub(super) fn build_metrics(out: &mut Outputs, tree: &Octree) {
     let s = &tree.stats;
     out.metric("build_s", s.build_s)
         .metric("bytes_per_voxel", s.bytes_per_voxel())
@@ -284,16 +288,18 @@ fn render_in<F: CastReal>(ctx: &OpCtx, sc: &VoxelScene, tree: &Octree) -> Result
 }
 
 fn render(ctx: &OpCtx) -> Result<Outputs> {
-    ctx.cpu_only()?;
     let sc = load(ctx)?;
     let tree = build(&sc.shape, sc.depth, &ctx.budget)?;
+    if ctx.backend == BackendKind::Gpu {
+        return super::voxels_gpu::render_gpu(ctx, &sc, &tree);
+    }
     match ctx.precision {
         Precision::F32 => render_in::<f32>(ctx, &sc, &tree),
         Precision::F64 => render_in::<f64>(ctx, &sc, &tree),
     }
 }
 
-fn widen<F: Real>(b: &Batch<F>) -> (Vec<[f64; 3]>, Vec<[f64; 3]>) {
+pub(super) fn widen<F: Real>(b: &Batch<F>) -> (Vec<[f64; 3]>, Vec<[f64; 3]>) {
     (
         b.o.iter().map(|v| v.map(|x| x.f64())).collect(),
         b.d.iter().map(|v| v.map(|x| x.f64())).collect(),
@@ -414,7 +420,7 @@ fn process_cpu_s() -> Option<f64> {
 }
 
 /// Runs `f`, returning its result, wall seconds and CPU seconds (0 when unknown).
-fn timed<R>(f: impl FnOnce() -> R) -> (R, f64, f64) {
+pub(super) fn timed<R>(f: impl FnOnce() -> R) -> (R, f64, f64) {
     let (c0, t0) = (process_cpu_s(), Instant::now());
     let r = f();
     let wall = t0.elapsed().as_secs_f64();

@@ -1,0 +1,279 @@
+//! The ESVO octree cast on the GPU (`kernels/voxels.wgsl`): [`GpuOctree`]
+//! holds one scene's nodes, uploaded once, and casts batches of camera rays
+//! (generated on the GPU by common.wgsl `camera_ray`, entry `cast_camera`)
+//! or given rays (entry `cast_rays`). CPU twin: `src/voxels/cast.rs` `cast`
+//! (`cast::<f32>`); parity cases `voxel_gpu_*` in
+//! `TESTS/voxels/manifest_gpu.yaml`. Inputs are plain node words and f32
+//! parameters: nothing here imports the voxel renderer.
+
+use bytemuck::{Pod, Zeroable};
+
+use super::buffers::{run, storage_in, storage_out, uniform, Pass};
+use super::context::GpuContext;
+use super::kernels::pipeline;
+use super::rays::RayParams;
+use crate::budget::{bytes_for, MemBudget};
+use crate::camera::Camera;
+use crate::error::{Error, Result};
+use crate::rays::RayGen;
+
+/// Uniform of `kernels/voxels.wgsl` (keep in sync with `struct VoxParams`
+/// there): 12 scalars, 48 bytes.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Pod, Zeroable)]
+pub struct VoxParams {
+    pub near: f32,
+    pub far: f32,
+    pub lod_orig: f32,
+    pub lod_dir: f32,
+    pub lod_on: u32,
+    pub depth: u32,
+    pub max_iter: u32,
+    pub n: u32,
+    pub write_rays: u32,
+    pub _pad: [u32; 3],
+}
+const _: () = assert!(std::mem::size_of::<VoxParams>() == 48);
+
+/// One ray's result (`struct VoxHit` of the kernel; 32 bytes).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
+pub struct GpuVoxelHit {
+    pub t: f32,
+    pub voxel: [u32; 3],
+    pub iters: u32,
+    /// Bit 0 hit, bit 1 capped, bit 2 solid leaf, bits 8..16 level, bits 16..32 node words read.
+    pub flags: u32,
+    /// Byte a holds `normal[a] + 1`.
+    pub normal: u32,
+    pub attr: u32,
+}
+const _: () = assert!(std::mem::size_of::<GpuVoxelHit>() == 32);
+
+impl GpuVoxelHit {
+    pub fn hit(&self) -> bool {
+        self.flags & 1 != 0
+    }
+
+    pub fn capped(&self) -> bool {
+        self.flags & 2 != 0
+    }
+
+    pub fn level(&self) -> u32 {
+        self.flags >> 8 & 0xFF
+    }
+
+    /// Node words (4 bytes each) the cast read: descriptors, far pointers
+    /// and the leaf's attribute base (saturating at 65535).
+    pub fn loads(&self) -> u32 {
+        self.flags >> 16
+    }
+
+    /// The entered face's outward normal (zero on a miss or an inside start).
+    pub fn normal(&self) -> [i8; 3] {
+        [0, 8, 16].map(|s| (self.normal >> s & 0xFF) as i8 - 1)
+    }
+}
+
+/// The cast's options, already in the kernel's f32 (the CPU cast rounds
+/// its f64 parameters the same way: `F::of`).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct GpuCastParams {
+    pub near: f32,
+    /// Finite (WGSL may assume no infinities): `f32::MAX` for none.
+    pub far: f32,
+    /// `(orig_size / 2, dir_size / 2)` in f32, as the CPU cast computes them.
+    pub lod: Option<(f32, f32)>,
+    pub max_iter: u32,
+}
+
+/// What a batch returned: per-ray results, the camera rays when asked for
+/// (`[ox, oy, oz, dx, dy, dz]` per ray), the GPU seconds (submit to
+/// readback) and the iteration cap the kernel ran with.
+pub struct GpuCast {
+    pub hits: Vec<GpuVoxelHit>,
+    pub rays: Vec<[f32; 6]>,
+    pub gpu_s: f64,
+    pub max_iter: u32,
+}
+
+/// One scene's octree on the GPU: the node buffer (uploaded once) and the
+/// two pipelines of `kernels/voxels.wgsl`.
+pub struct GpuOctree<'c> {
+    ctx: &'c GpuContext,
+    nodes: wgpu::Buffer,
+    depth: u32,
+    camera: wgpu::ComputePipeline,
+    given: wgpu::ComputePipeline,
+}
+
+/// Rays per dispatch: bounded so one batch's results fit a binding.
+fn batch_rays(ctx: &GpuContext) -> u64 {
+    (ctx.max_binding() / 32).min(1 << 24)
+}
+
+impl<'c> GpuOctree<'c> {
+    /// Uploads `nodes` (the layout of `src/voxels/octree.rs`) of a depth-`depth` tree.
+    pub fn new(ctx: &'c GpuContext, nodes: &[u32], depth: u32) -> Result<GpuOctree<'c>> {
+        if nodes.len() < 2 || !nodes.len().is_multiple_of(2) || !(1..=22).contains(&depth) {
+            return Err(Error::invalid(
+                "gpu voxel octree",
+                format!(
+                    "{} node words at depth {depth} (need an even count >= 2, depth 1..=22)",
+                    nodes.len()
+                ),
+            ));
+        }
+        Ok(GpuOctree {
+            ctx,
+            nodes: storage_in(ctx, "voxel nodes", nodes)?,
+            depth,
+            camera: pipeline(ctx, "voxels", "cast_camera")?,
+            given: pipeline(ctx, "voxels", "cast_rays")?,
+        })
+    }
+
+    /// The iteration cap the kernel runs with: `max_iter`, clamped below
+    /// the driver's loop cap (the cast's main loop is its only loop; 16
+    /// iterations are left for `camera_ray`'s 3-axis clip loop) so the
+    /// driver never cuts a ray short silently: a ray over the cap is a
+    /// `capped` miss, as on the CPU.
+    pub fn kernel_max_iter(&self, max_iter: u32) -> u32 {
+        match self.ctx.max_loop_iterations() {
+            Some(cap) => max_iter.min(cap.saturating_sub(16) as u32),
+            None => max_iter,
+        }
+    }
+
+    fn params(&self, p: &GpuCastParams, n: u32, write_rays: bool) -> Result<VoxParams> {
+        if !(p.near.is_finite() && p.far.is_finite() && p.near <= p.far) {
+            return Err(Error::invalid(
+                "gpu voxel cast",
+                format!(
+                    "near {} and far {} must be finite, near <= far",
+                    p.near, p.far
+                ),
+            ));
+        }
+        let (lod_on, (lod_orig, lod_dir)) = p.lod.map_or((0, (0.0, 0.0)), |l| (1, l));
+        Ok(VoxParams {
+            near: p.near,
+            far: p.far,
+            lod_orig,
+            lod_dir,
+            lod_on,
+            depth: self.depth,
+            max_iter: self.kernel_max_iter(p.max_iter),
+            n,
+            write_rays: write_rays as u32,
+            _pad: [0; 3],
+        })
+    }
+
+    /// Casts the camera rays of `gen`'s region (region order), generated on
+    /// the GPU; `keep_rays` also reads the rays back.
+    pub fn cast_camera(
+        &self,
+        cam: &Camera,
+        gen: &RayGen,
+        p: &GpuCastParams,
+        keep_rays: bool,
+        budget: &MemBudget,
+    ) -> Result<GpuCast> {
+        gen.validate()?;
+        cam.validate()?;
+        let roi = gen.region();
+        let n = roi.width as u64 * roi.height as u64;
+        if n > batch_rays(self.ctx) {
+            return Err(Error::NotSupported(format!(
+                "gpu voxel cast: {n} camera rays in one image, over the {} one batch holds",
+                batch_rays(self.ctx)
+            )));
+        }
+        budget.check(
+            "gpu voxel cast results",
+            bytes_for(n, 2 * (32 + if keep_rays { 24 } else { 0 })),
+        )?;
+        let vp = self.params(p, n as u32, keep_rays)?;
+        let cu = uniform(self.ctx, "voxel camera", &RayParams::new(cam, gen));
+        let vu = uniform(self.ctx, "voxel params", &vp);
+        let hits = storage_out(self.ctx, "voxel hits", n * 32)?;
+        let rays = storage_out(self.ctx, "voxel rays", if keep_rays { n * 24 } else { 0 })?;
+        let pass = Pass {
+            label: "cast_camera",
+            pipeline: &self.camera,
+            buffers: &[(0, &cu), (1, &vu), (2, &self.nodes), (4, &hits), (5, &rays)],
+            n,
+            wg: 64,
+        };
+        let read: Vec<&wgpu::Buffer> = if keep_rays {
+            vec![&hits, &rays]
+        } else {
+            vec![&hits]
+        };
+        let rb = run(self.ctx, "cast_camera", &[pass], &read)?;
+        let n = n as usize;
+        let rays = if keep_rays {
+            rb.take::<[f32; 6]>(1, n)?
+        } else {
+            Vec::new()
+        };
+        Ok(GpuCast {
+            hits: rb.take(0, n)?,
+            rays,
+            gpu_s: rb.gpu_s,
+            max_iter: vp.max_iter,
+        })
+    }
+
+    /// Casts given rays `[ox, oy, oz, dx, dy, dz]`, in batches that fit a binding.
+    pub fn cast_rays(
+        &self,
+        rays: &[[f32; 6]],
+        p: &GpuCastParams,
+        budget: &MemBudget,
+    ) -> Result<GpuCast> {
+        let n = rays.len() as u64;
+        budget.check("gpu voxel cast results", bytes_for(n, 2 * 32 + 24))?;
+        let mut out = GpuCast {
+            hits: Vec::with_capacity(rays.len()),
+            rays: Vec::new(),
+            gpu_s: 0.0,
+            max_iter: self.kernel_max_iter(p.max_iter),
+        };
+        for chunk in rays.chunks(batch_rays(self.ctx) as usize) {
+            let m = chunk.len() as u64;
+            let vu = uniform(self.ctx, "voxel params", &self.params(p, m as u32, false)?);
+            let inb = storage_in(self.ctx, "voxel rays in", chunk)?;
+            let hits = storage_out(self.ctx, "voxel hits", m * 32)?;
+            let pass = Pass {
+                label: "cast_rays",
+                pipeline: &self.given,
+                buffers: &[(1, &vu), (2, &self.nodes), (3, &inb), (4, &hits)],
+                n: m,
+                wg: 64,
+            };
+            let rb = run(self.ctx, "cast_rays", &[pass], &[&hits])?;
+            out.hits.extend(rb.take::<GpuVoxelHit>(0, m as usize)?);
+            out.gpu_s += rb.gpu_s;
+        }
+        Ok(out)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn hit_fields_unpack_flags_and_normal_bytes() {
+        let h = GpuVoxelHit {
+            flags: 1 | 4 | (9 << 8) | (40 << 16),
+            normal: 0x01_02_00,
+            ..GpuVoxelHit::default()
+        };
+        assert!(h.hit() && !h.capped());
+        assert_eq!((h.level(), h.loads()), (9, 40));
+        assert_eq!(h.normal(), [-1, 1, 0]);
+    }
+}

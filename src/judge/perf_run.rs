@@ -1,0 +1,112 @@
+//! `hpjudge perf`: runs each scenario of perf_scenarios.yaml in a worker
+//! process (time limit `perf` of thresholds.yaml) and writes perf.json.
+
+use std::path::{Path, PathBuf};
+
+use crate::judge::env;
+use crate::judge::load::{load_yaml_typed, JudgeInputError};
+use crate::judge::perf::{PerfReport, PerfScenarios, Scenario, ScenarioResult};
+use crate::judge::runner::{self, ChildEnd};
+use crate::judge::thresholds::{pick_profile, Thresholds, ThresholdsFile};
+
+/// Why a perf run stopped (a scenario's own failure is in its result instead).
+#[derive(Debug, thiserror::Error)]
+pub enum PerfRunError {
+    #[error(transparent)]
+    Input(#[from] JudgeInputError),
+    #[error(transparent)]
+    Io(#[from] std::io::Error),
+    #[error(transparent)]
+    Json(#[from] serde_json::Error),
+}
+
+/// Runs the scenarios of `scenarios` whose id contains `filter`, calling
+/// `each` with every result as it arrives; writes `out/perf.json` and returns
+/// the report and that path. thresholds.yaml is read beside the scenarios
+/// file, profile `ci` when CI is set, else `default`.
+pub fn run_scenarios(
+    scenarios: &Path,
+    out: &Path,
+    filter: Option<&str>,
+    threads: usize,
+    seed: u32,
+    mut each: impl FnMut(&ScenarioResult),
+) -> Result<(PerfReport, PathBuf), PerfRunError> {
+    let perf = PerfScenarios::load(scenarios)?;
+    let root = scenarios.parent().unwrap_or(Path::new("."));
+    let root = if root.as_os_str().is_empty() {
+        Path::new(".")
+    } else {
+        root
+    };
+    let th_path = root.join("thresholds.yaml");
+    let (tf, _): (ThresholdsFile, String) = load_yaml_typed(&th_path)?;
+    let (profile, _) = pick_profile(&tf, std::env::var_os("CI").is_some(), None);
+    let th = Thresholds::load(&th_path, &profile)?;
+    std::fs::create_dir_all(out)?;
+    let mut results = Vec::new();
+    for s in perf
+        .scenarios
+        .iter()
+        .filter(|s| filter.is_none_or(|f| s.id.contains(f)))
+    {
+        let dir = out.join("perf").join(&s.id);
+        std::fs::create_dir_all(&dir)?;
+        let args: Vec<String> = vec![
+            "--scenarios".into(),
+            scenarios.display().to_string(),
+            "--scenario".into(),
+            s.id.clone(),
+            "--thresholds".into(),
+            th_path.display().to_string(),
+            "--profile".into(),
+            profile.clone(),
+            "--out".into(),
+            out.display().to_string(),
+            "--threads".into(),
+            threads.to_string(),
+            "--seed".into(),
+            seed.to_string(),
+        ];
+        let limit = th
+            .timeout("perf")
+            .or_else(|| th.timeout("default"))
+            .unwrap_or(600.0);
+        let r = match runner::run_child(
+            &args,
+            limit,
+            &dir.join("worker.log"),
+            &dir.join("result.json"),
+        ) {
+            ChildEnd::Done(t) => serde_json::from_str(&t)?,
+            ChildEnd::TimedOut => failed_scenario(s, format!("timed out after {limit:.0} s")),
+            ChildEnd::Failed(why) => failed_scenario(s, why),
+        };
+        each(&r);
+        results.push(r);
+    }
+    let threads = if threads > 0 {
+        threads
+    } else {
+        env::logical_cpus()
+    };
+    let report = PerfReport {
+        schema_version: 1,
+        environment: env::describe(threads, seed, &profile, "-", &th.sha256, None),
+        scenarios: results,
+    };
+    let path = out.join("perf.json");
+    std::fs::write(&path, serde_json::to_string_pretty(&report)? + "\n")?;
+    Ok((report, path))
+}
+
+fn failed_scenario(s: &Scenario, e: String) -> ScenarioResult {
+    ScenarioResult {
+        id: s.id.clone(),
+        op: s.op.clone(),
+        backend: s.backend,
+        precision: s.precision,
+        metrics: Default::default(),
+        error: Some(e),
+    }
+}

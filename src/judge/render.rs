@@ -1,0 +1,56 @@
+//! `hpjudge render`: one scene through its renderer's `render` operation,
+//! outside any manifest (replaying dumped rays, or a gradient image).
+
+use std::path::Path;
+
+use crate::budget::MemBudget;
+use crate::error::{Error, Result};
+use crate::judge::ops::{self, BackendKind, OpCtx};
+use crate::real::Precision;
+use crate::scene::SceneDoc;
+use crate::tensor::{Outputs, Tensor};
+
+/// What `hpjudge render` was asked for.
+pub struct RenderRequest<'a> {
+    pub scene: &'a Path,
+    pub backend: BackendKind,
+    pub precision: Precision,
+    /// `key=value` scene overrides (dotted paths allowed).
+    pub set: &'a [String],
+    /// Rays to replay: an (N, 9) `.npy` written by `--dump-failing`.
+    pub rays: Option<&'a Path>,
+    /// dL/d rgb (H, W, 3) for renderers with gradients.
+    pub grad_from: Option<&'a Path>,
+    pub seed: u32,
+    pub budget: MemBudget,
+}
+
+/// Loads the scene and runs `<renderer>.render` on it.
+pub fn render(req: &RenderRequest) -> Result<Outputs> {
+    let doc = SceneDoc::load(req.scene, req.set)?;
+    let renderer = doc.renderer()?.to_string();
+    let name = format!("{renderer}.render");
+    let op = ops::find(&name).ok_or_else(|| {
+        Error::NotSupported(format!("renderer {renderer:?} has no `render` operation"))
+    })?;
+    let rays_t = req.rays.map(Tensor::read_npy).transpose()?;
+    let mut params = serde_yaml::Mapping::new();
+    if let Some(g) = req.grad_from {
+        params.insert("grad_from".into(), g.display().to_string().into());
+    }
+    let params = serde_yaml::Value::Mapping(params);
+    let root = req.scene.parent().unwrap_or(Path::new(".")).to_path_buf();
+    let ctx = OpCtx {
+        case_id: "render",
+        scene: Some(&doc),
+        params: &params,
+        backend: req.backend,
+        precision: req.precision,
+        seed: req.seed,
+        budget: req.budget,
+        dump: false,
+        rays: rays_t.as_ref(),
+        root: &root,
+    };
+    (op.run)(&ctx)
+}

@@ -1,0 +1,88 @@
+//! The voxel renderer's GPU backend: the cast's parameters rounded to the
+//! kernel's f32 exactly as [`super::cast::cast::<f32>`] rounds them, and the
+//! kernel's per-ray results (`crate::gpu::voxels`, `kernels/voxels.wgsl`)
+//! in the renderer's [`VoxelHits`] conventions.
+
+use crate::gpu::voxels::{GpuCastParams, GpuVoxelHit};
+
+use super::cast::CastParams;
+use super::render::VoxelHits;
+
+/// `p` in the kernel's f32: near and far as `F::of` rounds them (far
+/// clamped to `f32::MAX`, a bound no ray reaches in the unit box), the LOD
+/// footprint halved after rounding, as the CPU cast does.
+pub fn gpu_params(p: &CastParams) -> GpuCastParams {
+    GpuCastParams {
+        near: p.near as f32,
+        far: (p.far as f32).min(f32::MAX),
+        lod: p
+            .lod
+            .map(|l| (l.orig_size as f32 * 0.5, l.dir_size as f32 * 0.5)),
+        max_iter: p.max_iter,
+    }
+}
+
+/// The kernel's results as [`VoxelHits<f32>`] (a miss: t = -1, leaf = -1).
+pub fn hits_from_gpu(h: &[GpuVoxelHit]) -> VoxelHits<f32> {
+    let mut out = VoxelHits::default();
+    for r in h {
+        out.hit.push(r.hit() as u8);
+        out.t.push(r.t);
+        out.leaf.push(if r.hit() {
+            r.voxel.map(|v| v as i32)
+        } else {
+            [-1; 3]
+        });
+        out.normal.push(r.normal().map(|v| v as f32));
+        out.iters.push(r.iters as i32);
+        out.capped += r.capped() as u64;
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::voxels::cast::Lod;
+
+    #[test]
+    fn params_round_like_the_f32_cast_and_keep_far_finite() {
+        let p = CastParams {
+            near: 0.1,
+            far: f64::INFINITY,
+            lod: Some(Lod {
+                orig_size: 0.3,
+                dir_size: 0.02,
+            }),
+            max_iter: 77,
+        };
+        let g = gpu_params(&p);
+        assert_eq!((g.near, g.far, g.max_iter), (0.1f32, f32::MAX, 77));
+        assert_eq!(g.lod, Some((0.3f32 * 0.5, 0.02f32 * 0.5)));
+    }
+
+    #[test]
+    fn misses_become_minus_one_leaves() {
+        let h = [
+            GpuVoxelHit {
+                t: -1.0,
+                normal: 0x010101,
+                flags: 2,
+                ..Default::default()
+            },
+            GpuVoxelHit {
+                t: 2.5,
+                voxel: [1, 2, 3],
+                flags: 1 | 4 | (8 << 8),
+                normal: 0x010100,
+                iters: 9,
+                ..Default::default()
+            },
+        ];
+        let v = hits_from_gpu(&h);
+        assert_eq!(v.hit, vec![0, 1]);
+        assert_eq!(v.leaf, vec![[-1; 3], [1, 2, 3]]);
+        assert_eq!(v.normal[1], [-1.0, 0.0, 0.0]);
+        assert_eq!((v.capped, v.iters[1]), (1, 9));
+    }
+}
