@@ -2,12 +2,15 @@
 //! proved by its judge, `hpjudge`.
 //!
 //! Imports point one way: `judge` -> `scene` -> renderers -> `gpu` -> core
-//! (`camera`, `rays`, `rng`, `real`, `tensor`, `budget`, `parallel`, `error`).
+//! (`camera`, `rays`, `rng`, `real`, `tensor`, `budget`, `parallel`, `error`,
+//! `stats`).
 
 pub mod budget;
 pub mod camera;
 pub mod error;
 pub mod gpu;
+#[cfg(test)]
+mod independence;
 pub mod judge;
 pub mod parallel;
 pub mod pathtrace;
@@ -15,6 +18,7 @@ pub mod rays;
 pub mod real;
 pub mod rng;
 pub mod scene;
+pub mod stats;
 pub mod tensor;
 pub mod transport;
 pub mod volume;

@@ -1,7 +1,10 @@
 //! `f_ray`: ray generation and AABB clipping (seed 000, module 1; SCENES.md
 //! "Camera" and "World box"). Output is a structure of arrays:
 //! `Rays { o, d, t0, t1, pixel }`. A ray that misses the box has `t1 <= t0`
-//! (both set to `near`); no NaN or Inf ever leaves this stage.
+//! (both set to `near`); no NaN or Inf ever leaves this stage. Its referee
+//! (f64 rays from K and C2W, face-plane clipping) is [`referee`].
+
+pub mod referee;
 
 use crate::budget::{bytes_for, MemBudget};
 use crate::camera::Camera;
@@ -261,7 +264,8 @@ pub fn clip_aabb<F: Real>(
 
 /// `f_ray`: one ray per pixel of the region, clipped to the box. Pixel
 /// positions are centres, or jittered with [`Jitter`]. Refuses plans over
-/// the memory budget before allocating.
+/// the memory budget before allocating. GPU twin: `kernels/rays.wgsl` entry
+/// `f_ray` (host side `src/gpu/rays.rs`; parity cases `gpu_rays_*_parity`).
 pub fn f_ray<F: Real>(cam: &Camera, gen: &RayGen, budget: &MemBudget) -> Result<Rays<F>> {
     gen.validate()?;
     cam.validate()?;

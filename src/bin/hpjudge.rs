@@ -403,7 +403,7 @@ fn cmd_render(a: &RenderArgs) -> anyhow::Result<Outcome> {
 fn cmd_list(a: &ListArgs) -> anyhow::Result<Outcome> {
     if a.ops {
         for e in ops::table() {
-            println!("{:<32} {}", e.name, e.doc);
+            println!("{:<32} {:<22} {}", e.name, e.support.describe(), e.doc);
         }
         return Ok(Outcome::Ok);
     }

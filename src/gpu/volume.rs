@@ -20,10 +20,8 @@ use crate::camera::Camera;
 use crate::error::{Error, Result};
 use crate::rays::RayGen;
 
-/// GPU-only ray flag (kernels/volume.wgsl `FLAG_UNSTABLE`): a decision of
-/// this ray (early stop, lattice end, occupancy face, field discontinuity)
-/// sits within rounding of its threshold.
-pub const FLAG_UNSTABLE: u32 = 8;
+pub use super::codes::FLAG_UNSTABLE;
+use super::codes::FieldKind;
 
 /// A node-aligned grid in f32: `n = (nx, ny, nz)`, `data` C order with
 /// `ch` channels innermost, `scale = (n - 1) / (max - min)` per axis.
@@ -160,31 +158,32 @@ impl VolParams {
         (p.stratified, p.seed) = v.stratified.map_or((0, 0), |s| (1, s));
         p.log_path = v.log_path as u32;
         match v.field {
-            GpuField::Constant { s } => (p.field_kind, p.field_a[0]) = (0, s),
+            GpuField::Constant { s } => (p.field_kind, p.field_a[0]) = (FieldKind::Constant as u32, s),
             GpuField::Slabs { axis, sigma, .. } => {
-                (p.field_kind, p.slab_axis, p.slab_n) = (1, axis, sigma.len() as u32);
+                (p.field_kind, p.slab_axis, p.slab_n) =
+                    (FieldKind::Slabs as u32, axis, sigma.len() as u32);
             }
             GpuField::Gaussian {
                 amplitude,
                 mean,
                 inv_two_var,
             } => {
-                p.field_kind = 2;
+                p.field_kind = FieldKind::Gaussian as u32;
                 p.field_a = [amplitude, inv_two_var, 0.0, 0.0];
                 p.field_b = v4(mean);
             }
             GpuField::Shell { centre, r0, r1, s } => {
-                p.field_kind = 3;
+                p.field_kind = FieldKind::Shell as u32;
                 p.field_a = [r0, r1, s, 0.0];
                 p.field_b = v4(centre);
             }
             GpuField::Linear { a, g } => {
-                p.field_kind = 4;
+                p.field_kind = FieldKind::Linear as u32;
                 p.field_a[0] = a;
                 p.field_b = v4(g);
             }
             GpuField::Grid(g) => {
-                p.field_kind = 5;
+                p.field_kind = FieldKind::Grid as u32;
                 p.sg_bmin = v4(g.bmin);
                 p.sg_scale = v4(g.scale);
                 p.sg_n = [g.n[0], g.n[1], g.n[2], g.clamp as u32];

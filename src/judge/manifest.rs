@@ -291,8 +291,23 @@ fn validate_case(
             );
         }
     }
-    let mut runs: Vec<(String, String, Option<String>, &Value)> =
-        vec![("op".into(), c.op.clone(), c.scene.clone(), &c.params)];
+    // (key, op, scene, params, backends and precision it runs in)
+    type Run<'a> = (
+        String,
+        String,
+        Option<String>,
+        &'a Value,
+        Vec<BackendKind>,
+        Precision,
+    );
+    let mut runs: Vec<Run> = vec![(
+        "op".into(),
+        c.op.clone(),
+        c.scene.clone(),
+        &c.params,
+        c.backends.clone(),
+        c.precision,
+    )];
     for (name, r) in &c.refs {
         if !valid_id(name) || name.contains('.') {
             return err(
@@ -307,9 +322,11 @@ fn validate_case(
             op,
             scene,
             r.params.as_ref().unwrap_or(&c.params),
+            r.backend.map_or_else(|| c.backends.clone(), |b| vec![b]),
+            r.precision.unwrap_or(c.precision),
         ));
     }
-    for (key, op, scene, params) in runs {
+    for (key, op, scene, params, backends, precision) in runs {
         let Some(entry) = ops::find(&op) else {
             return err(
                 &key,
@@ -319,6 +336,9 @@ fn validate_case(
                 ),
             );
         };
+        if let Some(why) = backends.iter().find_map(|&b| entry.refuses(b, precision)) {
+            return err(&key, why);
+        }
         if let Some(m) = params.as_mapping() {
             for k in m.keys() {
                 let k = k.as_str().unwrap_or("?");

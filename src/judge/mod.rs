@@ -14,6 +14,11 @@
 //! | `worker.rs` | one case on one backend, in a child process |
 //! | `runner.rs` | the run: workers, time limits, scoreboard, summary |
 //! | `scoreboard.rs`, `junit.rs`, `artifacts.rs` | what a run writes |
+//! | `measure.rs` | wall and CPU seconds |
+//! | `plot.rs` | every plot the judge draws |
+//!
+//! Statistics (Šidák, KS, chi-square, medians, slopes) are `crate::stats`,
+//! named here as `stats` for the assertions.
 
 pub mod artifacts;
 pub mod asserts;
@@ -22,12 +27,15 @@ pub mod env;
 pub mod junit;
 pub mod load;
 pub mod manifest;
+pub mod measure;
 pub mod ops;
 pub mod perf;
+pub mod plot;
 pub mod perf_run;
 pub mod render;
 pub mod runner;
 pub mod scoreboard;
-pub mod stats;
 pub mod thresholds;
 pub mod worker;
+
+use crate::stats;

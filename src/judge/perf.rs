@@ -88,12 +88,15 @@ impl PerfScenarios {
                     format!("{:?} is invalid or repeated", s.id),
                 ));
             }
-            if ops::find(&s.op).is_none() {
+            let Some(entry) = ops::find(&s.op) else {
                 return Err(JudgeInputError::new(
                     &at,
                     &key("op"),
                     format!("unknown operation {:?}", s.op),
                 ));
+            };
+            if let Some(why) = entry.refuses(s.backend, s.precision) {
+                return Err(JudgeInputError::new(&at, &key("op"), why));
             }
             if let Some(sc) = &s.scene {
                 if !dir.join(sc).is_file() {

@@ -52,5 +52,5 @@ pub fn render(req: &RenderRequest) -> Result<Outputs> {
         rays: rays_t.as_ref(),
         root: &root,
     };
-    (op.run)(&ctx)
+    op.call(&ctx)
 }

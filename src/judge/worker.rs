@@ -128,9 +128,9 @@ fn run_once(spec: &RunSpec, env: &WorkerEnv, case_id: &str, root: &Path) -> Resu
     };
     let t = Instant::now();
     let mut out = if spec.threads > 0 {
-        with_threads(spec.threads, || (spec.op.run)(&ctx))
+        with_threads(spec.threads, || spec.op.call(&ctx))
     } else {
-        (spec.op.run)(&ctx)
+        spec.op.call(&ctx)
     }?;
     out.metrics
         .insert("wall_s".into(), t.elapsed().as_secs_f64());

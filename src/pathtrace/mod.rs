@@ -5,13 +5,17 @@
 //! quads, the one intersection function; [`packed`] runs it four shapes at
 //! a time for rendering), [`bsdf`] (materials: a closed
 //! enum), [`integrator`] (NEE + MIS path loop, Russian roulette, tiles over
-//! rayon), [`chi2`] (the statistical test the judge runs on every sampler).
+//! rayon). Beside them: [`referee`] (independent f64 references that never
+//! call these stages), [`checks`] (harnesses that run the stages against the
+//! referees and `crate::stats`) and [`listed`] (listed-ray problems).
 //! The renderer takes typed parameters; `scene/pathtrace.rs` builds them.
 
 pub mod bsdf;
-pub mod chi2;
+pub mod checks;
 pub mod integrator;
+pub mod listed;
 pub mod packed;
+pub mod referee;
 pub mod shapes;
 
 pub use bsdf::Material;

@@ -294,4 +294,25 @@ mod tests {
         let e = parse_yaml_text(&s, "bomb.yaml").unwrap_err().to_string();
         assert!(e.contains("bomb.yaml"), "{e}");
     }
+
+    #[test]
+    fn docs_scenes_md_carries_every_scene_table_line() {
+        let page = include_str!("../../docs/scenes.md");
+        for (file, src) in [
+            ("camera.rs", include_str!("camera.rs")),
+            ("rays.rs", include_str!("rays.rs")),
+            ("volume.rs", include_str!("volume.rs")),
+            ("pathtrace.rs", include_str!("pathtrace.rs")),
+            ("transport.rs", include_str!("transport.rs")),
+            ("voxels.rs", include_str!("voxels.rs")),
+        ] {
+            for line in src.lines().take_while(|l| l.starts_with("//!")) {
+                let text = line.trim_start_matches("//!").trim();
+                assert!(
+                    page.lines().any(|l| l.trim() == text),
+                    "docs/scenes.md lacks {file}: {text:?} (run scripts/scenes_md.py)"
+                );
+            }
+        }
+    }
 }

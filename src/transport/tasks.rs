@@ -416,10 +416,7 @@ pub fn observer_scan<F: Real>(
 }
 
 /// An observer scan's outputs from its traces (input order).
-pub fn observer_out<F: Real>(
-    traces: Vec<Traced<F, 8>>,
-    dump: &[usize],
-) -> ObserverOut<F> {
+pub fn observer_out<F: Real>(traces: Vec<Traced<F, 8>>, dump: &[usize]) -> ObserverOut<F> {
     let mut out = ObserverOut::default();
     for (i, (t, poly)) in traces.into_iter().enumerate() {
         if dump.contains(&i) {

@@ -5,7 +5,7 @@
 //! scene or a `.npy` file gives) and rounded once to the render precision
 //! ([`Field`], [`ColorField`]) before rendering. Interfaces are closed enums;
 //! [`FieldKind`] codes are the WGSL `switch` values of the GPU twin
-//! (`kernels/volume_fused.wgsl` when it exists, issue 5).
+//! (`kernels/volume.wgsl` `sigma_at`), defined once in `src/gpu/codes.rs`.
 //!
 //! | kind | sigma(x) |
 //! | --- | --- |
@@ -22,18 +22,7 @@ use crate::real::Real;
 /// Largest density accepted: keeps `sigma * dt` and sums of it finite in f32.
 pub const MAX_SIGMA: f64 = 1e15;
 
-/// Kind codes shared with the WGSL twin (keep in sync with
-/// `kernels/volume_*.wgsl` constants `FIELD_*`).
-#[repr(u32)]
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum FieldKind {
-    Constant = 0,
-    Slabs = 1,
-    Gaussian = 2,
-    Shell = 3,
-    Linear = 4,
-    Grid = 5,
-}
+pub use crate::gpu::codes::FieldKind;
 
 /// Out-of-box policy of a dense grid (SCENES.md): `Zero`: a corner outside
 /// the index range contributes 0; `Clamp`: coordinates clamp to the box.

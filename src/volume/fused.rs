@@ -1,11 +1,12 @@
 //! `f_fused`: ray generation, sampling, field query and integration in one
 //! pass per ray, with no per-sample buffers (seed 000, module 5).
 //!
-//! [`march_ray`] is the whole per-ray loop as a pure function; the GPU twin
-//! `kernels/volume_fused.wgsl` (issue 5) copies it line for line. It walks
-//! the lattice of `sample.rs` (`walk_lattice`) and drives the same
-//! [`RayAcc`] as `f_int`, so the fused and unfused chains perform the same
-//! operations on the same numbers: bit-identical in f32 and f64.
+//! [`march_ray`] is the whole per-ray loop as a pure function; its GPU twin
+//! is `kernels/volume.wgsl` entry `f_fused` (parity cases
+//! `gpu_vol_*_parity`). It walks the lattice of `sample.rs` (`walk_lattice`)
+//! and drives the same [`RayAcc`] as `f_int`, so the fused and unfused
+//! chains perform the same operations on the same numbers: bit-identical in
+//! f32 and f64.
 //!
 //! Rays are processed in 8 x 8 pixel tiles (neighbouring rays touch the same
 //! grid cells, so the dense grid stays in cache), tiles in parallel.

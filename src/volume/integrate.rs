@@ -10,7 +10,8 @@
 //! [`RayAcc`] is the per-ray state machine both this stage and the fused
 //! loop (`fused.rs`) drive, sample by sample, with the same operations in
 //! the same order: that is what makes fused and unfused bit-identical. Its
-//! WGSL twin will be `kernels/volume_fused.wgsl` `ray_acc_*` (issue 5).
+//! WGSL twin is `kernels/volume.wgsl` (entry `f_int`, and the accumulation
+//! inside `f_fused`); parity cases `gpu_vol_*_unfused_parity`.
 //!
 //! Persisted for the backward pass (issue 4), per sample: `alpha_k` and
 //! `log T_k` (before sample k). Samples after an early stop keep alpha = 0

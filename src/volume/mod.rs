@@ -9,6 +9,9 @@
 //! | `f_img` | `compose.rs` | per-ray results -> image (sorted or scatter path) |
 //! | `f_fused` | `fused.rs` | camera -> per-ray results, one pass, no sample buffers |
 //! | skipping | `occupancy.rs` | field -> occupancy bitfield |
+//! | loss, probes | `loss.rs` | the backward pass's loss weights and probe nodes |
+//! | outputs | `grad_outputs.rs` | a backward pass as named tensors |
+//! | referees | `referee/` | quadrature, closed forms, finite differences (never these stages) |
 //!
 //! [`render`] chains them (fused or unfused) for a typed [`VolumeParams`].
 
@@ -17,8 +20,11 @@ pub mod diff;
 pub mod field;
 pub mod fused;
 pub mod gpu;
+pub mod grad_outputs;
 pub mod integrate;
+pub mod loss;
 pub mod occupancy;
+pub mod referee;
 pub mod sample;
 
 use std::time::Instant;

@@ -12,9 +12,13 @@
 //! ray r (`off[0] = 0`, `off[n] = m`), `ray_id` per sample, then `t`, `dt`,
 //! `sigma`, `color`. Positions are not stored: `sample_pos(o, d, t)` recomputes
 //! them bit for bit.
+//!
+//! GPU twin: `kernels/volume.wgsl` entries `f_samp_count` and `f_samp_fill`
+//! (parity cases `gpu_vol_*_unfused_parity`).
 
 use crate::budget::{bytes_for, MemBudget};
 use crate::error::{Error, Result};
+use crate::gpu::codes;
 use crate::parallel::{par_collect, par_each};
 use crate::rays::Rays;
 use crate::real::Real;
@@ -114,10 +118,11 @@ pub fn sample_pos<F: Real>(o: [F; 3], d: [F; 3], t: F) -> [F; 3] {
     [o[0] + t * d[0], o[1] + t * d[1], o[2] + t * d[2]]
 }
 
-/// Per-ray flag bits (in [`Samples::flags`] and `RayOut::flags`).
-pub const FLAG_HIT: u8 = 1;
-pub const FLAG_STOPPED: u8 = 2;
-pub const FLAG_TRUNCATED: u8 = 4;
+/// Per-ray flag bits (in [`Samples::flags`] and `RayOut::flags`), the
+/// values of `src/gpu/codes.rs` shared with the kernels.
+pub const FLAG_HIT: u8 = codes::FLAG_HIT as u8;
+pub const FLAG_STOPPED: u8 = codes::FLAG_STOPPED as u8;
+pub const FLAG_TRUNCATED: u8 = codes::FLAG_TRUNCATED as u8;
 
 /// `f_samp` output: packed samples (see the module doc).
 #[derive(Clone, Debug, PartialEq)]

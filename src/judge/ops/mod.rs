@@ -8,6 +8,17 @@
 //! independent reference (a closed form, an f64 quadrature, a DDA referee)
 //! are rows too, so the runner never re-implements math.
 
+/// `f::<f32>(args)` or `f::<f64>(args)` by the case's precision: the one
+/// place an operation picks its float type.
+macro_rules! by_precision {
+    ($ctx:expr, $f:ident ( $($arg:expr),* $(,)? )) => {
+        match $ctx.precision {
+            $crate::real::Precision::F32 => $f::<f32>($($arg),*),
+            $crate::real::Precision::F64 => $f::<f64>($($arg),*),
+        }
+    };
+}
+
 mod pathtrace;
 mod rays;
 mod selftest;
@@ -104,14 +115,43 @@ impl<'a> OpCtx<'a> {
         self.root.join(p)
     }
 
-    /// Refuses the GPU backend until a renderer has a kernel for this operation.
-    pub fn cpu_only(&self) -> Result<()> {
-        match self.backend {
-            BackendKind::Cpu => Ok(()),
-            BackendKind::Gpu => Err(Error::NotSupported(format!(
-                "{}: no GPU kernel for this operation yet",
-                self.case_id
-            ))),
+}
+
+/// The backends and precisions an operation runs in. The manifest loader
+/// (and `hpjudge check`) refuses any other combination before anything runs;
+/// [`OpEntry::call`] refuses it again for direct calls (`hpjudge render`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Support {
+    /// The CPU, in f32 and f64 (no GPU kernel yet).
+    Cpu,
+    /// The CPU in f32 and f64, the GPU in f32.
+    CpuGpuF32,
+    /// The GPU in f32 only (a parity or bench operation that runs the CPU
+    /// beside the GPU itself).
+    GpuF32,
+    /// Any backend and precision: the operation computes the same either
+    /// way (a reference in f64 on the CPU, a table, a planted self-test).
+    Any,
+}
+
+impl Support {
+    /// Whether `backend` in `precision` is supported.
+    pub fn allows(self, backend: BackendKind, precision: Precision) -> bool {
+        match self {
+            Support::Cpu => backend == BackendKind::Cpu,
+            Support::CpuGpuF32 => backend == BackendKind::Cpu || precision == Precision::F32,
+            Support::GpuF32 => backend == BackendKind::Gpu && precision == Precision::F32,
+            Support::Any => true,
+        }
+    }
+
+    /// For messages and `hpjudge list --ops`.
+    pub fn describe(self) -> &'static str {
+        match self {
+            Support::Cpu => "cpu f32/f64",
+            Support::CpuGpuF32 => "cpu f32/f64, gpu f32",
+            Support::GpuF32 => "gpu f32",
+            Support::Any => "any backend and precision",
         }
     }
 }
@@ -124,7 +164,32 @@ pub struct OpEntry {
     pub doc: &'static str,
     /// Parameter keys the operation reads (unknown keys are refused on load).
     pub params: &'static [&'static str],
+    /// Backends and precisions it runs in.
+    pub support: Support,
     pub run: fn(&OpCtx) -> Result<Outputs>,
+}
+
+impl OpEntry {
+    /// `None` when this operation runs on `backend` in `precision`, else why not.
+    pub fn refuses(&self, backend: BackendKind, precision: Precision) -> Option<String> {
+        (!self.support.allows(backend, precision)).then(|| {
+            format!(
+                "{} does not run on {} in {} (it runs: {})",
+                self.name,
+                backend.name(),
+                precision.name(),
+                self.support.describe()
+            )
+        })
+    }
+
+    /// Runs the operation, refusing an unsupported backend or precision.
+    pub fn call(&self, ctx: &OpCtx) -> Result<Outputs> {
+        if let Some(why) = self.refuses(ctx.backend, ctx.precision) {
+            return Err(Error::NotSupported(format!("{}: {why}", ctx.case_id)));
+        }
+        (self.run)(ctx)
+    }
 }
 
 /// Every operation, in table order.

@@ -15,9 +15,10 @@ use std::time::Instant;
 
 use serde::Deserialize;
 
-use super::{BackendKind, OpCtx, OpEntry};
+use super::{BackendKind, OpCtx, OpEntry, Support};
 use crate::camera::Camera;
 use crate::error::{Error, Result};
+use crate::rays::referee::{clip_list_reference, clip_reference};
 use crate::rays::{clip_aabb, f_ray, Aabb, RayGen, Rays};
 use crate::real::{Precision, Real};
 use crate::rng::{rand_f32, rand_f64, rand_u32};
@@ -28,54 +29,63 @@ pub const OPS: &[OpEntry] = &[
         name: "rays.generate",
         doc: "f_ray on a rays scene: o, d, t0, t1, hit, pixel; metric mrays_per_s",
         params: &[],
+        support: Support::CpuGpuF32,
         run: generate,
     },
     OpEntry {
         name: "rays.render",
         doc: "hpjudge render of a rays scene (same as rays.generate)",
         params: &[],
+        support: Support::CpuGpuF32,
         run: generate,
     },
     OpEntry {
         name: "rays.clip_reference",
         doc: "independent f64 rays and box entry/exit by face intersection",
         params: &[],
-        run: clip_reference,
+        support: Support::Any,
+        run: clip_reference_op,
     },
     OpEntry {
         name: "rays.clip_list",
         doc: "clip the rays in params.rays ([ox,oy,oz,dx,dy,dz] each) to params.aabb",
         params: &["rays", "aabb", "near", "far"],
+        support: Support::Cpu,
         run: clip_list,
     },
     OpEntry {
         name: "rays.clip_list_reference",
         doc: "independent f64 face-intersection clip of params.rays",
         params: &["rays", "aabb", "near", "far"],
-        run: clip_list_reference,
+        support: Support::Any,
+        run: clip_list_reference_op,
     },
     OpEntry {
         name: "rays.jitter_offsets",
         doc: "jittered pixel offsets (x and y in [0,1)) of a rays scene with jitter",
         params: &[],
+        support: Support::Cpu,
         run: jitter_offsets,
     },
     OpEntry {
         name: "rays.rng_table",
         doc: "rand_u32 and rand_f32 for seeds x pixels x samples x dims in params",
         params: &["seeds", "pixels", "samples", "dims"],
+        support: Support::CpuGpuF32,
         run: rng_table,
     },
     OpEntry {
         name: "rays.expm1_table",
         doc: "expm1(x) for x in params.xs: CPU f32/f64 libm, GPU common.wgsl expm1_f32",
         params: &["xs"],
+        support: Support::CpuGpuF32,
         run: expm1_table,
     },
     OpEntry {
         name: "const",
         doc: "tensors given literally in params.tensors: {name: {dtype, shape, data}}",
         params: &["tensors"],
+        support: Support::Any,
         run: constant,
     },
 ];
@@ -165,113 +175,14 @@ fn generate(ctx: &OpCtx) -> Result<Outputs> {
         rays_outputs(&r, &image_shape(&gen), &mut out)?;
         return Ok(out);
     }
-    match ctx.precision {
-        Precision::F32 => generate_in::<f32>(ctx, &mut out)?,
-        Precision::F64 => generate_in::<f64>(ctx, &mut out)?,
-    }
+    by_precision!(ctx, generate_in(ctx, &mut out))?;
     Ok(out)
 }
 
-/// Entry and exit of `o + t d` with a closed box by intersecting each of
-/// the six face planes and keeping the hits inside the face rectangle
-/// (relative slack 1e-12 for the f64 rounding of the hit point). Written
-/// apart from `rays::clip_aabb` (slab method) so that each checks the other.
-fn faces_clip(o: [f64; 3], d: [f64; 3], b: &Aabb, near: f64, far: f64) -> (f64, f64, bool) {
-    let mut ts: Vec<f64> = Vec::with_capacity(6);
-    for axis in 0..3 {
-        if d[axis] == 0.0 {
-            continue;
-        }
-        for plane in [b.min[axis], b.max[axis]] {
-            let t = (plane - o[axis]) / d[axis];
-            // Along an axis the ray does not move in, the coordinate is exact.
-            let on_face = (0..3).filter(|&k| k != axis).all(|k| {
-                let p = o[k] + t * d[k];
-                let slack = if d[k] == 0.0 {
-                    0.0
-                } else {
-                    1e-12 * (1.0 + p.abs())
-                };
-                p >= b.min[k] - slack && p <= b.max[k] + slack
-            });
-            if on_face {
-                ts.push(t);
-            }
-        }
-    }
-    // An axis-parallel ray lying in a face plane meets that face along a
-    // segment; its entry/exit come from the other axes' planes, found above.
-    let (lo, hi) = match (
-        ts.iter().cloned().reduce(f64::min),
-        ts.iter().cloned().reduce(f64::max),
-    ) {
-        (Some(a), Some(b)) => (a.max(near), b.min(far)),
-        _ => return (near, near, false),
-    };
-    if hi > lo {
-        (lo, hi, true)
-    } else {
-        (near, near, false)
-    }
-}
-
-/// The ray through pixel position (px, py), computed directly from the
-/// camera's K and C2W in f64 (independent of `camera::RealCamera`).
-fn reference_ray(cam: &Camera, px: f64, py: f64, w: u32, h: u32) -> ([f64; 3], [f64; 3]) {
-    let m = cam.c2w();
-    let rot = |v: [f64; 3]| -> [f64; 3] {
-        [0, 1, 2].map(|r| m[r][0] * v[0] + m[r][1] * v[1] + m[r][2] * v[2])
-    };
-    let pos = [m[0][3], m[1][3], m[2][3]];
-    match cam {
-        Camera::Pinhole { k, .. } => {
-            let d = rot([(px - k.cx) / k.fx, (k.cy - py) / k.fy, -1.0]);
-            let n = d.iter().map(|x| x * x).sum::<f64>().sqrt();
-            (pos, d.map(|x| x / n))
-        }
-        Camera::Orthographic {
-            half_width,
-            half_height,
-            ..
-        } => {
-            let x = half_width * (2.0 * px / w as f64 - 1.0);
-            let y = half_height * (1.0 - 2.0 * py / h as f64);
-            let oc = rot([x, y, 0.0]);
-            (
-                [oc[0] + pos[0], oc[1] + pos[1], oc[2] + pos[2]],
-                rot([0.0, 0.0, -1.0]),
-            )
-        }
-    }
-}
-
-fn clip_reference(ctx: &OpCtx) -> Result<Outputs> {
+/// Independent f64 rays and box entry/exit: `rays::referee`.
+fn clip_reference_op(ctx: &OpCtx) -> Result<Outputs> {
     let (cam, gen) = view(ctx)?;
-    let roi = gen.region();
-    let shape = image_shape(&gen);
-    let n = shape[0] * shape[1];
-    let (mut t0, mut t1, mut hit, mut ds) =
-        (vec![0.0; n], vec![0.0; n], vec![0u8; n], vec![[0.0; 3]; n]);
-    for i in 0..n {
-        let u = roi.x + (i as u32 % roi.width);
-        let v = roi.y + (i as u32 / roi.width);
-        let pixel = v * gen.width + u;
-        let (jx, jy) = gen.jitter.map_or((0.5, 0.5), |j| {
-            (
-                rand_f64(j.seed, pixel, j.sample, 0),
-                rand_f64(j.seed, pixel, j.sample, 1),
-            )
-        });
-        let (o, d) = reference_ray(&cam, u as f64 + jx, v as f64 + jy, gen.width, gen.height);
-        let (a, b, h) = faces_clip(o, d, &gen.aabb, gen.near, gen.far);
-        (t0[i], t1[i], hit[i], ds[i]) = (a, b, h as u8, d);
-    }
-    let mut out = Outputs::default();
-    out.tensor("t0", Tensor::real(&shape, t0)?);
-    out.tensor("t1", Tensor::real(&shape, t1)?);
-    out.tensor("hit", Tensor::from_shape_vec(&shape, hit)?);
-    out.tensor("d", Tensor::real3(&shape, &ds)?);
-    Ok(out)
+    clip_reference(&cam, &gen).to_outputs(&image_shape(&gen))
 }
 
 #[derive(Deserialize)]
@@ -332,24 +243,13 @@ fn clip_list_in<F: Real>(rays: &[[f64; 6]], b: &Aabb, near: f64, far: f64) -> Re
 }
 
 fn clip_list(ctx: &OpCtx) -> Result<Outputs> {
-    ctx.cpu_only()?;
     let (rays, b, near, far) = listed(ctx)?;
-    match ctx.precision {
-        Precision::F32 => clip_list_in::<f32>(&rays, &b, near, far),
-        Precision::F64 => clip_list_in::<f64>(&rays, &b, near, far),
-    }
+    by_precision!(ctx, clip_list_in(&rays, &b, near, far))
 }
 
-fn clip_list_reference(ctx: &OpCtx) -> Result<Outputs> {
+fn clip_list_reference_op(ctx: &OpCtx) -> Result<Outputs> {
     let (rays, b, near, far) = listed(ctx)?;
-    let (mut t0, mut t1, mut hit) = (vec![], vec![], vec![]);
-    for r in &rays {
-        let (o, d) = unit(r);
-        let (a, c, h) = faces_clip(o, d, &b, near, far);
-        t0.push(a);
-        t1.push(c);
-        hit.push(h as u8);
-    }
+    let (t0, t1, hit) = clip_list_reference(&rays, &b, near, far);
     let n = [rays.len()];
     let mut out = Outputs::default();
     out.tensor("t0", Tensor::real(&n, t0)?)
@@ -359,7 +259,6 @@ fn clip_list_reference(ctx: &OpCtx) -> Result<Outputs> {
 }
 
 fn jitter_offsets(ctx: &OpCtx) -> Result<Outputs> {
-    ctx.cpu_only()?;
     let (_, gen) = view(ctx)?;
     let at = ctx.scene()?.at();
     let j = gen

@@ -10,16 +10,14 @@
 
 use std::time::Instant;
 
-use super::{BackendKind, OpCtx, OpEntry};
+use super::{BackendKind, OpCtx, OpEntry, Support};
 use crate::error::{Error, Result};
 use crate::gpu::GpuContext;
-use crate::real::{Precision, Real};
+use crate::real::Precision;
 use crate::scene::transport::{parse, TransportScene};
 use crate::tensor::Outputs;
 use crate::transport::integrate::Options;
-use crate::transport::tasks::{
-    Deflection, DeflectionOut, GrinOut, GrinRays, ObserverOut, ObserverScan, Task,
-};
+use crate::transport::tasks::Task;
 use crate::transport::{gpu, tasks};
 
 /// Refuses what the GPU backend cannot run (anything but f32) and builds
@@ -38,39 +36,11 @@ pub fn prepare(ctx: &OpCtx, s: &TransportScene) -> Result<()> {
     Ok(())
 }
 
-pub fn deflection<F: Real>(
-    ctx: &OpCtx,
-    d: &Deflection<F>,
-    opt: &Options<F>,
-    dump: &[usize],
-) -> Result<DeflectionOut<F>> {
+/// The GPU context when `ctx` runs on the GPU backend, else `None`.
+pub fn gpu(ctx: &OpCtx) -> Result<Option<&'static GpuContext>> {
     match ctx.backend {
-        BackendKind::Cpu => tasks::deflection(d, opt, &ctx.budget, dump),
-        BackendKind::Gpu => gpu::deflection(GpuContext::get()?, d, opt, &ctx.budget, dump),
-    }
-}
-
-pub fn observer_scan<F: Real>(
-    ctx: &OpCtx,
-    s: &ObserverScan<F>,
-    opt: &Options<F>,
-    dump: &[usize],
-) -> Result<ObserverOut<F>> {
-    match ctx.backend {
-        BackendKind::Cpu => tasks::observer_scan(s, opt, &ctx.budget, dump),
-        BackendKind::Gpu => gpu::observer_scan(GpuContext::get()?, s, opt, &ctx.budget, dump),
-    }
-}
-
-pub fn grin_rays<F: Real>(
-    ctx: &OpCtx,
-    g: &GrinRays<F>,
-    opt: &Options<F>,
-    dump: &[usize],
-) -> Result<GrinOut<F>> {
-    match ctx.backend {
-        BackendKind::Cpu => tasks::grin_rays(g, opt, &ctx.budget, dump),
-        BackendKind::Gpu => gpu::grin_rays(GpuContext::get()?, g, opt, &ctx.budget, dump),
+        BackendKind::Cpu => Ok(None),
+        BackendKind::Gpu => GpuContext::get().map(Some),
     }
 }
 
@@ -78,6 +48,7 @@ pub const OPS: &[OpEntry] = &[OpEntry {
     name: "transport.perf_backends",
     doc: "the scene's task traced in f32 on the CPU fan-out and on the GPU kernel: photon-steps/s and ns per photon-step of each, and their ratio",
     params: &[],
+    support: Support::GpuF32,
     run: perf_backends,
 }];
 
@@ -88,12 +59,16 @@ fn timed(
     task: &Task<f32>,
     opt: &Options<f32>,
 ) -> Result<(f64, u64)> {
-    let c = OpCtx { backend, ..*ctx };
+    let g = gpu(&OpCtx { backend, ..*ctx })?;
+    let b = &ctx.budget;
     let t = Instant::now();
-    let steps = match task {
-        Task::Deflection(d) => deflection(&c, d, opt, &[])?.steps,
-        Task::Observer(s) => observer_scan(&c, s, opt, &[])?.steps,
-        Task::Grin(g) => grin_rays(&c, g, opt, &[])?.steps,
+    let steps = match (task, g) {
+        (Task::Deflection(d), None) => tasks::deflection(d, opt, b, &[])?.steps,
+        (Task::Deflection(d), Some(c)) => gpu::deflection(c, d, opt, b, &[])?.steps,
+        (Task::Observer(s), None) => tasks::observer_scan(s, opt, b, &[])?.steps,
+        (Task::Observer(s), Some(c)) => gpu::observer_scan(c, s, opt, b, &[])?.steps,
+        (Task::Grin(r), None) => tasks::grin_rays(r, opt, b, &[])?.steps,
+        (Task::Grin(r), Some(c)) => gpu::grin_rays(c, r, opt, b, &[])?.steps,
     };
     Ok((
         t.elapsed().as_secs_f64(),

@@ -18,18 +18,20 @@
 
 use std::time::Instant;
 
-use super::{BackendKind, OpCtx, OpEntry};
+use super::{BackendKind, OpCtx, OpEntry, Support};
 use crate::budget::bytes_for;
 use crate::error::{Error, Result};
+use crate::judge::measure::timed;
 use crate::parallel::par_collect;
 use crate::rays::{f_ray, RayGen, Rays};
-use crate::real::{Precision, Real};
+use crate::real::Real;
 use crate::scene::voxels::VoxelScene;
 use crate::tensor::{Outputs, Tensor};
 use crate::voxels::cast::{CastParams, CastReal};
 use crate::voxels::octree::{build, Octree};
 use crate::voxels::raysets::{hard, incoherent, HARD_KINDS};
-use crate::voxels::render::{cast_all, referee_all, shade, VoxelHits};
+use crate::voxels::outputs::{build_metrics, put_hits};
+use crate::voxels::render::{cast_all, referee_all};
 use crate::voxels::shape::Shape;
 
 const RAY_PARAMS: &[&str] = &["rays", "count", "seed"];
@@ -39,24 +41,28 @@ pub const OPS: &[OpEntry] = &[
         name: "voxels.render",
         doc: "ESVO cast of a voxels scene: hit, t, leaf, normal, image, iters; build_s, bytes_per_voxel, mrays_per_s",
         params: RAY_PARAMS,
+        support: Support::CpuGpuF32,
         run: render,
     },
     OpEntry {
         name: "voxels.referee",
         doc: "exact f64 Amanatides-Woo DDA over the scene predicate: hit, t, leaf, normal, tie, near_tie, untied, clear",
         params: &["rays", "count", "seed", "near_margin"],
+        support: Support::Any,
         run: referee_op,
     },
     OpEntry {
         name: "voxels.sphere_bounds",
         doc: "entry t of the spheres radius -+ half a voxel diagonal: t_outer, t_inner, meets_outer, meets_inner",
         params: &["rays", "count", "seed", "slack_rel"],
+        support: Support::Any,
         run: sphere_bounds,
     },
     OpEntry {
         name: "voxels.bench",
         doc: "octree vs referee Mrays/s on coherent (size^2 camera) and incoherent (count) rays; build_s, bytes_per_voxel",
         params: &["count", "size", "seed", "referee_stride"],
+        support: Support::Cpu,
         run: bench,
     },
 ];
@@ -81,11 +87,7 @@ pub(super) fn from64<F: Real>(rays: Vec<([f64; 3], [f64; 3])>) -> (Vec<[F; 3]>, 
         .unzip()
 }
 
-pub(super) fn camera_batch<F: Real>(
-    ctx: &OpCtx,
-    sc: &VoxelScene,
-    size: Option<u32>,
-) -> Result<Batch<F>> {
+pub(super) fn camera_batch<F: Real>(ctx: &OpCtx, sc: &VoxelScene, size: Option<u32>) -> Result<Batch<F>> {
     let (cam, mut gen): (_, RayGen) = sc.view.build()?;
     let cam = match size {
         Some(s) => {
@@ -180,81 +182,6 @@ pub(super) fn dump_rays<F: Real>(b: &Batch<F>) -> Result<Tensor> {
     .to_tensor()
 }
 
-fn with_3(shape: &[usize]) -> Vec<usize> {
-    let mut s = shape.to_vec();
-    s.push(3);
-    s
-}
-
-/// `i + N (j + N k)` (N = 2^depth) as f64, -1 on a miss: one number per ray
-/// for counting differing voxels; exact for depth <= 17.
-fn leaf_key(leaf: &[[i32; 3]], depth: u32) -> Vec<f64> {
-    let n = (1u64 << depth) as f64;
-    leaf.iter()
-        .map(|v| {
-            if v[0] < 0 {
-                -1.0
-            } else {
-                v[0] as f64 + n * (v[1] as f64 + n * v[2] as f64)
-            }
-        })
-        .collect()
-}
-
-pub(super) fn put_hits<F: Real>(
-    out: &mut Outputs,
-    h: VoxelHits<F>,
-    shape: &[usize],
-    depth: u32,
-    image: bool,
-) -> Result<()> {
-    out.tensor(
-        "leaf_key",
-        Tensor::from_shape_vec(shape, leaf_key(&h.leaf, depth))?,
-    );
-    if image {
-        let img: Vec<[F; 3]> = h
-            .hit
-            .iter()
-            .zip(&h.normal)
-            .map(|(&x, &n)| shade(x == 1, n))
-            .collect();
-        out.tensor("image", Tensor::real3(shape, &img)?);
-    }
-    out.tensor("hit", Tensor::from_shape_vec(shape, h.hit)?);
-    out.tensor("t", Tensor::real(shape, h.t)?);
-    out.tensor(
-        "leaf",
-        Tensor::from_shape_vec(
-            &with_3(shape),
-            h.leaf.into_iter().flatten().collect::<Vec<i32>>(),
-        )?,
-    );
-    out.tensor("normal", Tensor::real3(shape, &h.normal)?);
-    out.tensor("iters", Tensor::from_shape_vec(shape, h.iters)?);
-    out.counter("capped", h.capped);
-    Ok(())
-}
-
-pub(super) fn build_metrics(out: &mut Outputs, tree: &Octree) {
-    let s = &tree.stats;
-    out.metric("build_s", s.build_s)
-        .metric("bytes_per_voxel", s.bytes_per_voxel())
-        .metric(
-            "bytes_per_leaf",
-            if s.leaves == 0 {
-                0.0
-            } else {
-                s.bytes as f64 / s.leaves as f64
-            },
-        )
-        .metric("solid_voxels", s.solid_voxels as f64);
-    out.counter("bytes", s.bytes)
-        .counter("descriptors", s.descriptors)
-        .counter("far_slots", s.far_slots);
-    out.counter("leaves", s.leaves);
-}
-
 fn render_in<F: CastReal>(ctx: &OpCtx, sc: &VoxelScene, tree: &Octree) -> Result<Outputs> {
     let b = batch::<F>(ctx, sc)?;
     let n = b.o.len() as u64;
@@ -293,10 +220,7 @@ fn render(ctx: &OpCtx) -> Result<Outputs> {
     if ctx.backend == BackendKind::Gpu {
         return super::voxels_gpu::render_gpu(ctx, &sc, &tree);
     }
-    match ctx.precision {
-        Precision::F32 => render_in::<f32>(ctx, &sc, &tree),
-        Precision::F64 => render_in::<f64>(ctx, &sc, &tree),
-    }
+    by_precision!(ctx, render_in(ctx, &sc, &tree))
 }
 
 pub(super) fn widen<F: Real>(b: &Batch<F>) -> (Vec<[f64; 3]>, Vec<[f64; 3]>) {
@@ -338,10 +262,7 @@ fn referee_in<F: Real>(ctx: &OpCtx, sc: &VoxelScene) -> Result<Outputs> {
 
 fn referee_op(ctx: &OpCtx) -> Result<Outputs> {
     let sc = load(ctx)?;
-    match ctx.precision {
-        Precision::F32 => referee_in::<f32>(ctx, &sc),
-        Precision::F64 => referee_in::<f64>(ctx, &sc),
-    }
+    by_precision!(ctx, referee_in(ctx, &sc))
 }
 
 /// First t >= near at which `o + t d` (unit d) is inside the ball of
@@ -402,33 +323,7 @@ fn sphere_bounds(ctx: &OpCtx) -> Result<Outputs> {
             "voxels.sphere_bounds needs a `shape: {type: sphere}` scene",
         ));
     };
-    match ctx.precision {
-        Precision::F32 => bounds_in::<f32>(ctx, &sc, radius),
-        Precision::F64 => bounds_in::<f64>(ctx, &sc, radius),
-    }
-}
-
-/// CPU seconds this process has used (user + system, all threads), from
-/// /proc/self/stat (USER_HZ = 100); `None` off Linux. Throughput per CPU
-/// second is robust to other jobs sharing the machine, unlike wall time.
-fn process_cpu_s() -> Option<f64> {
-    let s = std::fs::read_to_string("/proc/self/stat").ok()?;
-    let rest = &s[s.rfind(')')? + 2..];
-    let f: Vec<&str> = rest.split_whitespace().collect();
-    let ticks = f.get(11)?.parse::<u64>().ok()? + f.get(12)?.parse::<u64>().ok()?;
-    Some(ticks as f64 / 100.0)
-}
-
-/// Runs `f`, returning its result, wall seconds and CPU seconds (0 when unknown).
-pub(super) fn timed<R>(f: impl FnOnce() -> R) -> (R, f64, f64) {
-    let (c0, t0) = (process_cpu_s(), Instant::now());
-    let r = f();
-    let wall = t0.elapsed().as_secs_f64();
-    let cpu = match (c0, process_cpu_s()) {
-        (Some(a), Some(b)) => b - a,
-        _ => 0.0,
-    };
-    (r, wall, cpu)
+    by_precision!(ctx, bounds_in(ctx, &sc, radius))
 }
 
 fn bench_in<F: CastReal>(ctx: &OpCtx, sc: &VoxelScene, tree: &Octree) -> Result<Outputs> {
@@ -497,14 +392,10 @@ fn bench_in<F: CastReal>(ctx: &OpCtx, sc: &VoxelScene, tree: &Octree) -> Result<
 }
 
 fn bench(ctx: &OpCtx) -> Result<Outputs> {
-    ctx.cpu_only()?;
     let sc = load(ctx)?;
     let (tree, _, build_cpu) = timed(|| build(&sc.shape, sc.depth, &ctx.budget));
     let tree = tree?;
-    let mut out = match ctx.precision {
-        Precision::F32 => bench_in::<f32>(ctx, &sc, &tree),
-        Precision::F64 => bench_in::<f64>(ctx, &sc, &tree),
-    }?;
+    let mut out = by_precision!(ctx, bench_in(ctx, &sc, &tree))?;
     out.metric("build_cpu_s", build_cpu);
     Ok(out)
 }
@@ -513,6 +404,7 @@ fn bench(ctx: &OpCtx) -> Result<Outputs> {
 mod tests {
     use super::*;
     use crate::budget::MemBudget;
+    use crate::real::Precision;
     use crate::judge::ops::BackendKind;
     use crate::scene::SceneDoc;
     use serde_yaml::Value;

@@ -16,10 +16,10 @@
 
 use std::time::Instant;
 
-use super::voxels::{
-    batch, build_metrics, camera_batch, dump_rays, from64, load, put_hits, timed, Batch,
-};
-use super::{BackendKind, OpCtx, OpEntry};
+use super::voxels::{batch, camera_batch, dump_rays, from64, load, Batch};
+use super::{BackendKind, OpCtx, OpEntry, Support};
+use crate::judge::measure::timed;
+use crate::voxels::outputs::{build_metrics, put_hits};
 use crate::budget::bytes_for;
 use crate::error::{Error, Result};
 use crate::gpu::voxels::{GpuCast, GpuOctree};
@@ -40,12 +40,14 @@ pub const OPS: &[OpEntry] = &[
         name: "voxels.gpu_parity",
         doc: "GPU vs CPU f32 voxel cast on the same rays: both outputs, excused (referee ties / one-ulp near ties where they differ)",
         params: &["rays", "count", "seed", "ulp_margin"],
+        support: Support::GpuF32,
         run: gpu_parity,
     },
     OpEntry {
         name: "voxels.gpu_bench",
         doc: "CPU per-ray vs GPU octree cast in one run, coherent (size^2 camera) and incoherent (count): Mrays/s, Mrays/CPU-s, mean iterations, node bytes per ray",
         params: &["count", "size", "seed"],
+        support: Support::GpuF32,
         run: gpu_bench,
     },
 ];

@@ -1,11 +1,4 @@
-//! Statistics the judge's assertions use: the Kolmogorov–Smirnov test
-//! against U(0, 1) and the Šidák correction.
-
-/// Per-test significance for a family-wise level `alpha` over `m` tests:
-/// `1 - (1 - alpha)^(1/m)`.
-pub fn sidak(alpha: f64, m: usize) -> f64 {
-    1.0 - (1.0 - alpha).powf(1.0 / m.max(1) as f64)
-}
+//! The Kolmogorov–Smirnov test against U(0, 1).
 
 /// The KS statistic `D = sup |F_n(x) - x|` of samples against U(0, 1).
 pub fn ks_statistic_uniform(v: &[f64]) -> f64 {
@@ -68,39 +61,5 @@ mod tests {
         let sq: Vec<f64> = u.iter().map(|x| x * x).collect();
         assert!(ks_uniform_p(&sq) < 1e-6);
     }
-
-    #[test]
-    fn sidak_of_one_test_is_alpha() {
-        assert!((sidak(0.01, 1) - 0.01).abs() < 1e-15);
-        assert!(sidak(0.01, 10) < 0.001006 && sidak(0.01, 10) > 0.001004);
-    }
 }
 
-/// Median, 25th and 75th percentiles (linear interpolation) of `v`.
-pub fn quartiles(v: &[f64]) -> (f64, f64, f64) {
-    if v.is_empty() {
-        return (f64::NAN, f64::NAN, f64::NAN);
-    }
-    let mut s = v.to_vec();
-    s.sort_by(f64::total_cmp);
-    let q = |p: f64| {
-        let x = p * (s.len() - 1) as f64;
-        let (i, f) = (x.floor() as usize, x.fract());
-        if i + 1 < s.len() {
-            s[i] * (1.0 - f) + s[i + 1] * f
-        } else {
-            s[i]
-        }
-    };
-    (q(0.5), q(0.25), q(0.75))
-}
-
-#[cfg(test)]
-mod quartile_tests {
-    use super::*;
-
-    #[test]
-    fn quartiles_of_one_to_five() {
-        assert_eq!(quartiles(&[5.0, 1.0, 3.0, 2.0, 4.0]), (3.0, 2.0, 4.0));
-    }
-}

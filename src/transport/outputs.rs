@@ -1,0 +1,175 @@
+//! A traced transport task as named tensors (SCENES.md outputs; the
+//! `transport.render` table in `judge/ops/transport.rs`): deflection tasks
+//! `deflection`, `captured`, `escaped`, `side`, `steps`, `h_drift`,
+//! `err_est`, `reason`; observer tasks `captured`, `steps`, `h_drift`,
+//! `err_est`, `reason`; GRIN tasks `end_point`, `end_dir`, ... and by stop
+//! `exit_point`, `period`, `conjugate_point`; dumped rays `polylines`,
+//! `polyline_len`, `polyline_ray`.
+
+use std::time::Instant;
+
+use crate::budget::MemBudget;
+use crate::error::Result;
+use crate::real::Real;
+use crate::tensor::{Outputs, Tensor};
+use crate::transport::integrate::Options;
+use crate::transport::tasks::{deflection, grin_rays, observer_scan, GrinStop, Polyline, Task};
+
+pub fn vec1<F: Real>(v: Vec<F>) -> Result<Tensor> {
+    let n = v.len();
+    Tensor::real(&[n], v)
+}
+
+pub fn i32s(v: Vec<i32>) -> Result<Tensor> {
+    let n = v.len();
+    Tensor::from_shape_vec(&[n], v)
+}
+
+pub fn u8s(v: Vec<u8>) -> Result<Tensor> {
+    let n = v.len();
+    Tensor::from_shape_vec(&[n], v)
+}
+
+pub fn f64s(v: Vec<f64>) -> Result<Tensor> {
+    let n = v.len();
+    Tensor::from_shape_vec(&[n], v)
+}
+
+pub fn f64x3(v: Vec<[f64; 3]>) -> Result<Tensor> {
+    let n = v.len();
+    Tensor::from_shape_vec(&[n, 3], v.into_iter().flatten().collect())
+}
+
+/// `polylines` (k, L, 4), each padded with its last point, and
+/// `polyline_len` (k) for the dumped rays; nothing when none are dumped.
+fn polylines<F: Real>(p: &[Polyline<F>], out: &mut Outputs) -> Result<()> {
+    if p.is_empty() {
+        return Ok(());
+    }
+    let l = p.iter().map(|(_, v)| v.len()).max().unwrap_or(0).max(1);
+    let mut flat = Vec::with_capacity(p.len() * l * 4);
+    for (_, v) in p {
+        let last = v.last().copied().unwrap_or([F::zero(); 4]);
+        flat.extend(
+            v.iter()
+                .chain(std::iter::repeat(&last))
+                .take(l)
+                .flatten()
+                .copied(),
+        );
+    }
+    out.tensor("polylines", Tensor::real(&[p.len(), l, 4], flat)?);
+    out.tensor(
+        "polyline_len",
+        i32s(p.iter().map(|(_, v)| v.len() as i32).collect())?,
+    );
+    out.tensor(
+        "polyline_ray",
+        i32s(p.iter().map(|(i, _)| *i as i32).collect())?,
+    );
+    Ok(())
+}
+
+/// Traces `task` and writes its outputs into `out` (tensors named as in the
+/// module doc, metrics `time_s`, `s_per_1000_rays`, `ns_per_step`, counters
+/// `rays`, `steps`); returns per ray the quantity convergence studies use
+/// (deflection, capture flag, period, or the end point's coordinates).
+pub fn run_task<F: Real>(
+    task: &Task<F>,
+    opt: &Options<F>,
+    budget: &MemBudget,
+    dump: &[usize],
+    out: &mut Outputs,
+    gpu: Option<&crate::gpu::GpuContext>,
+) -> Result<Vec<Vec<f64>>> {
+    let t = Instant::now();
+    let (rays, steps, q): (usize, Vec<i32>, Vec<Vec<f64>>) = match task {
+        Task::Deflection(d) => {
+            let r = match gpu {
+                None => deflection(d, opt, budget, dump)?,
+                Some(c) => super::gpu::deflection(c, d, opt, budget, dump)?,
+            };
+            polylines(&r.polylines, out)?;
+            let q = r.deflection.iter().map(|v| vec![v.f64()]).collect();
+            out.tensor("deflection", vec1(r.deflection)?);
+            out.tensor("escaped", u8s(r.captured.iter().map(|c| 1 - c).collect())?);
+            out.tensor("captured", u8s(r.captured)?);
+            out.tensor("side", i32s(r.side)?);
+            out.tensor("h_drift", vec1(r.h_drift)?)
+                .tensor("err_est", vec1(r.err_est)?);
+            out.tensor("reason", i32s(r.reason)?);
+            (d.impact.len(), r.steps, q)
+        }
+        Task::Observer(s) => {
+            let r = match gpu {
+                None => observer_scan(s, opt, budget, dump)?,
+                Some(c) => super::gpu::observer_scan(c, s, opt, budget, dump)?,
+            };
+            polylines(&r.polylines, out)?;
+            let q = r.captured.iter().map(|&c| vec![c as f64]).collect();
+            out.tensor("captured", u8s(r.captured)?);
+            out.tensor("h_drift", vec1(r.h_drift)?)
+                .tensor("err_est", vec1(r.err_est)?);
+            out.tensor("reason", i32s(r.reason)?);
+            (s.angles_deg.len(), r.steps, q)
+        }
+        Task::Grin(g) => {
+            let r = match gpu {
+                None => grin_rays(g, opt, budget, dump)?,
+                Some(c) => super::gpu::grin_rays(c, g, opt, budget, dump)?,
+            };
+            polylines(&r.polylines, out)?;
+            let ends: Vec<Vec<f64>> = r
+                .end_point
+                .iter()
+                .map(|p| p.iter().map(|v| v.f64()).collect())
+                .collect();
+            let q: Vec<Vec<f64>> = match g.stop {
+                GrinStop::AxisReturn => {
+                    let period: Vec<F> = r
+                        .end_point
+                        .iter()
+                        .zip(&g.rays)
+                        .map(|(p, o)| p[0] - F::of(o[0]))
+                        .collect();
+                    let q = period.iter().map(|v| vec![v.f64()]).collect();
+                    out.tensor("period", vec1(period)?);
+                    q
+                }
+                GrinStop::LensExit => {
+                    out.tensor(
+                        "exit_point",
+                        Tensor::real3(&[r.end_point.len()], &r.end_point)?,
+                    );
+                    out.tensor("exit_dir", Tensor::real3(&[r.end_dir.len()], &r.end_dir)?);
+                    ends
+                }
+                GrinStop::Approach { .. } => {
+                    out.tensor(
+                        "conjugate_point",
+                        Tensor::real3(&[r.end_point.len()], &r.end_point)?,
+                    );
+                    ends
+                }
+                GrinStop::Steps { .. } => ends,
+            };
+            out.tensor(
+                "end_point",
+                Tensor::real3(&[r.end_point.len()], &r.end_point)?,
+            );
+            out.tensor("end_dir", Tensor::real3(&[r.end_dir.len()], &r.end_dir)?);
+            out.tensor("h_drift", vec1(r.h_drift)?)
+                .tensor("err_est", vec1(r.err_est)?);
+            out.tensor("reason", i32s(r.reason)?);
+            (g.rays.len(), r.steps, q)
+        }
+    };
+    let secs = t.elapsed().as_secs_f64();
+    let total: u64 = steps.iter().map(|&s| s.max(0) as u64).sum();
+    out.metric("time_s", secs);
+    out.metric("s_per_1000_rays", secs * 1000.0 / rays.max(1) as f64);
+    out.metric("ns_per_step", secs * 1e9 / total.max(1) as f64);
+    out.counter("rays", rays as u64).counter("steps", total);
+    out.tensor("steps", i32s(steps)?);
+    Ok(q)
+}

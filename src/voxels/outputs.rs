@@ -1,0 +1,86 @@
+//! Voxel casts and octree builds as named tensors, metrics and counters.
+
+use crate::error::Result;
+use crate::real::Real;
+use crate::tensor::{Outputs, Tensor};
+use crate::voxels::octree::Octree;
+use crate::voxels::render::{shade, VoxelHits};
+
+fn with_3(shape: &[usize]) -> Vec<usize> {
+    let mut s = shape.to_vec();
+    s.push(3);
+    s
+}
+
+/// `i + N (j + N k)` (N = 2^depth) as f64, -1 on a miss: one number per ray
+/// for counting differing voxels; exact for depth <= 17.
+pub fn leaf_key(leaf: &[[i32; 3]], depth: u32) -> Vec<f64> {
+    let n = (1u64 << depth) as f64;
+    leaf.iter()
+        .map(|v| {
+            if v[0] < 0 {
+                -1.0
+            } else {
+                v[0] as f64 + n * (v[1] as f64 + n * v[2] as f64)
+            }
+        })
+        .collect()
+}
+
+/// Writes a cast's hits into `out` with per-ray shape `shape`: `leaf_key`,
+/// `image` (shaded, when `image`), `hit`, `t`, `leaf`, `normal`, `iters`;
+/// counter `capped`.
+pub fn put_hits<F: Real>(
+    out: &mut Outputs,
+    h: VoxelHits<F>,
+    shape: &[usize],
+    depth: u32,
+    image: bool,
+) -> Result<()> {
+    out.tensor(
+        "leaf_key",
+        Tensor::from_shape_vec(shape, leaf_key(&h.leaf, depth))?,
+    );
+    if image {
+        let img: Vec<[F; 3]> = h
+            .hit
+            .iter()
+            .zip(&h.normal)
+            .map(|(&x, &n)| shade(x == 1, n))
+            .collect();
+        out.tensor("image", Tensor::real3(shape, &img)?);
+    }
+    out.tensor("hit", Tensor::from_shape_vec(shape, h.hit)?);
+    out.tensor("t", Tensor::real(shape, h.t)?);
+    out.tensor(
+        "leaf",
+        Tensor::from_shape_vec(
+            &with_3(shape),
+            h.leaf.into_iter().flatten().collect::<Vec<i32>>(),
+        )?,
+    );
+    out.tensor("normal", Tensor::real3(shape, &h.normal)?);
+    out.tensor("iters", Tensor::from_shape_vec(shape, h.iters)?);
+    out.counter("capped", h.capped);
+    Ok(())
+}
+
+/// The octree's build statistics as metrics and counters.
+pub fn build_metrics(out: &mut Outputs, tree: &Octree) {
+    let s = &tree.stats;
+    out.metric("build_s", s.build_s)
+        .metric("bytes_per_voxel", s.bytes_per_voxel())
+        .metric(
+            "bytes_per_leaf",
+            if s.leaves == 0 {
+                0.0
+            } else {
+                s.bytes as f64 / s.leaves as f64
+            },
+        )
+        .metric("solid_voxels", s.solid_voxels as f64);
+    out.counter("bytes", s.bytes)
+        .counter("descriptors", s.descriptors)
+        .counter("far_slots", s.far_slots);
+    out.counter("leaves", s.leaves);
+}
