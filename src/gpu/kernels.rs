@@ -37,6 +37,7 @@ pub const KERNELS: &[Kernel] = &[
     kernel!("expm1"),
     kernel!("volume"),
     kernel!("voxels"),
+    kernel!("transport"),
 ];
 
 /// The full source of kernel `name`: common.wgsl, then the file.
@@ -53,7 +54,8 @@ pub fn source(name: &str) -> Result<String> {
     ))
 }
 
-type Key = (&'static str, &'static str);
+/// Kernel, entry point, and its override constants (`name=value;` each).
+type Key = (&'static str, &'static str, String);
 
 static PIPELINES: Mutex<Option<HashMap<Key, wgpu::ComputePipeline>>> = Mutex::new(None);
 
@@ -65,11 +67,25 @@ pub fn pipeline(
     name: &'static str,
     entry: &'static str,
 ) -> Result<wgpu::ComputePipeline> {
+    pipeline_with(ctx, name, entry, &[])
+}
+
+/// [`pipeline`] specialised by WGSL `override` constants (one pipeline per
+/// distinct set of values): the driver sees constant branches and drops
+/// the code they skip.
+pub fn pipeline_with(
+    ctx: &GpuContext,
+    name: &'static str,
+    entry: &'static str,
+    constants: &[(&str, f64)],
+) -> Result<wgpu::ComputePipeline> {
+    let spec: String = constants.iter().map(|(k, v)| format!("{k}={v};")).collect();
     let mut guard = PIPELINES
         .lock()
         .map_err(|_| Error::Gpu("pipeline table poisoned by an earlier panic".into()))?;
     let table = guard.get_or_insert_with(HashMap::new);
-    if let Some(p) = table.get(&(name, entry)) {
+    let key = (name, entry, spec);
+    if let Some(p) = table.get(&key) {
         return Ok(p.clone());
     }
     let src = source(name)?;
@@ -87,7 +103,10 @@ pub fn pipeline(
             layout: None,
             module: &module,
             entry_point: Some(entry),
-            compilation_options: Default::default(),
+            compilation_options: wgpu::PipelineCompilationOptions {
+                constants,
+                ..Default::default()
+            },
             cache: ctx.pipeline_cache(),
         });
     if let Some(e) = pollster::block_on(scope.pop()) {
@@ -96,7 +115,7 @@ pub fn pipeline(
         )));
     }
     ctx.save_pipeline_cache();
-    table.insert((name, entry), p.clone());
+    table.insert(key, p.clone());
     Ok(p)
 }
 

@@ -14,6 +14,7 @@ pub mod context;
 pub mod kernels;
 pub mod math;
 pub mod rays;
+pub mod transport;
 pub mod volume;
 pub mod voxels;
 

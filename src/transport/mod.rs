@@ -13,10 +13,12 @@
 //!   Yoshida 4, implicit midpoint), located events, the per-ray loop.
 //! - [`tasks`]: what a scene asks for (deflection lists, observer angle
 //!   scans, GRIN ray lists), fanned out over rays.
+//! - [`gpu`]: the same tasks traced by `kernels/transport.wgsl` (f32).
 //! - [`outputs`]: a traced task as named tensors.
 //! - [`referee`]: closed forms and quadratures in f64 that check the above
 //!   and share no code with them.
 
+pub mod gpu;
 pub mod grin;
 pub mod disk;
 pub mod hamiltonian;

@@ -82,12 +82,17 @@ pub fn run_task<F: Real>(
     budget: &MemBudget,
     dump: &[usize],
     out: &mut Outputs,
+    gpu: Option<&crate::gpu::GpuContext>,
 ) -> Result<Vec<Vec<f64>>> {
     let t = Instant::now();
     let (rays, steps, q): (usize, Vec<i32>, Vec<Vec<f64>>) = match task {
+        Task::Curved(_) if gpu.is_some() => return Err(super::gpu::curved_not_supported()),
         Task::Curved(c) => run_curved(c, opt, budget, out)?,
         Task::Deflection(d) => {
-            let r = deflection(d, opt, budget, dump)?;
+            let r = match gpu {
+                None => deflection(d, opt, budget, dump)?,
+                Some(c) => super::gpu::deflection(c, d, opt, budget, dump)?,
+            };
             polylines(&r.polylines, out)?;
             let q = r.deflection.iter().map(|v| vec![v.f64()]).collect();
             out.tensor("deflection", vec1(r.deflection)?);
@@ -100,7 +105,10 @@ pub fn run_task<F: Real>(
             (d.impact.len(), r.steps, q)
         }
         Task::Observer(s) => {
-            let r = observer_scan(s, opt, budget, dump)?;
+            let r = match gpu {
+                None => observer_scan(s, opt, budget, dump)?,
+                Some(c) => super::gpu::observer_scan(c, s, opt, budget, dump)?,
+            };
             polylines(&r.polylines, out)?;
             let q = r.captured.iter().map(|&c| vec![c as f64]).collect();
             out.tensor("captured", u8s(r.captured)?);
@@ -110,7 +118,10 @@ pub fn run_task<F: Real>(
             (s.angles_deg.len(), r.steps, q)
         }
         Task::Grin(g) => {
-            let r = grin_rays(g, opt, budget, dump)?;
+            let r = match gpu {
+                None => grin_rays(g, opt, budget, dump)?,
+                Some(c) => super::gpu::grin_rays(c, g, opt, budget, dump)?,
+            };
             polylines(&r.polylines, out)?;
             let ends: Vec<Vec<f64>> = r
                 .end_point

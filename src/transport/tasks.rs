@@ -43,6 +43,12 @@ pub const MAX_POLYLINE: usize = 1 << 20;
 /// coordinate, signed `l` for Ellis).
 pub type Polyline<F> = (usize, Vec<[F; 4]>);
 
+/// A traced ray and its recorded points (empty unless dumped).
+pub type Traced<F, const N: usize> = (Trace<F, N>, Vec<[F; 4]>);
+
+/// A deflection list's stop events and start states.
+pub type Starts8<F> = (Vec<Event<F>>, Vec<[F; 8]>);
+
 fn cart6<F: Real>(y: &[F; 6]) -> [F; 3] {
     [y[0], y[1], y[2]]
 }
@@ -62,7 +68,7 @@ fn traced<F: Real, const N: usize, H: super::hamiltonian::Hamiltonian<F, N>>(
     ev: &[Event<F>],
     record: bool,
     cart: fn(&[F; N]) -> [F; 3],
-) -> (Trace<F, N>, Vec<[F; 4]>) {
+) -> Traced<F, N> {
     if !record {
         return (trace(sys, y0, opt, ev, |_, _| {}), Vec::new());
     }
@@ -224,13 +230,15 @@ fn validate_radii<F: Real>(
     Ok(())
 }
 
-/// Traces every photon of `task`.
-pub fn deflection<F: Real>(
+/// The validated start states and stop events of a deflection list,
+/// shared by the CPU fan-out ([`deflection`]) and the GPU kernel
+/// (`super::gpu`).
+pub fn deflection_setup<F: Real>(
     task: &Deflection<F>,
     opt: &Options<F>,
     budget: &MemBudget,
     dump: &[usize],
-) -> Result<DeflectionOut<F>> {
+) -> Result<Starts8<F>> {
     check_dump(dump, task.impact.len(), budget)?;
     validate_radii(&task.spacetime, task.r_start, task.r_end, task.horizon_eps)?;
     if task.r_end < task.r_start {
@@ -255,6 +263,17 @@ pub fn deflection<F: Real>(
             far_photon(&task.spacetime, task.r_start, b)
         })
         .collect::<Result<_>>()?;
+    Ok((ev, starts))
+}
+
+/// Traces every photon of `task`.
+pub fn deflection<F: Real>(
+    task: &Deflection<F>,
+    opt: &Options<F>,
+    budget: &MemBudget,
+    dump: &[usize],
+) -> Result<DeflectionOut<F>> {
+    let (ev, starts) = deflection_setup(task, opt, budget, dump)?;
     let traces = par_collect("transport.deflection", starts.len(), |i| {
         traced(
             &task.spacetime,
@@ -265,6 +284,16 @@ pub fn deflection<F: Real>(
             cart8,
         )
     });
+    Ok(deflection_out(task, traces, dump))
+}
+
+/// A deflection list's outputs from its traces (input order) and the
+/// polylines of the dumped rays.
+pub fn deflection_out<F: Real>(
+    task: &Deflection<F>,
+    traces: Vec<Traced<F, 8>>,
+    dump: &[usize],
+) -> DeflectionOut<F> {
     let mut out = DeflectionOut::default();
     let pi = F::PI();
     let is_schw = matches!(task.spacetime, Spacetime::Schwarzschild { .. });
@@ -286,7 +315,7 @@ pub fn deflection<F: Real>(
             t,
         );
     }
-    Ok(out)
+    out
 }
 
 fn push_common<F: Real, const N: usize>(
@@ -324,16 +353,12 @@ pub struct ObserverOut<F> {
     pub polylines: Vec<Polyline<F>>,
 }
 
-fn observer_trace<F: Real>(
-    scan: &ObserverScan<F>,
-    ev: &[Event<F>],
-    opt: &Options<F>,
-    psi_deg: f64,
-    record: bool,
-) -> (Trace<F, 8>, Vec<[F; 4]>) {
+/// The start state of the photon leaving the observer at `psi_deg` from
+/// the inward radial direction (computed in f64, then rounded).
+pub fn observer_start<F: Real>(scan: &ObserverScan<F>, psi_deg: f64) -> [F; 8] {
     let st64 = scan.spacetime.to_f64();
     let p = st64.static_observer_momentum(scan.r_obs, psi_deg.to_radians());
-    let y = [
+    [
         0.0,
         scan.r_obs,
         std::f64::consts::FRAC_PI_2,
@@ -343,11 +368,22 @@ fn observer_trace<F: Real>(
         p[2],
         p[3],
     ]
-    .map(F::of);
+    .map(F::of)
+}
+
+fn observer_trace<F: Real>(
+    scan: &ObserverScan<F>,
+    ev: &[Event<F>],
+    opt: &Options<F>,
+    psi_deg: f64,
+    record: bool,
+) -> Traced<F, 8> {
+    let y = observer_start(scan, psi_deg);
     traced(&scan.spacetime, y, opt, ev, record, cart8)
 }
 
-fn observer_setup<F: Real>(scan: &ObserverScan<F>, opt: &Options<F>) -> Result<Vec<Event<F>>> {
+/// The validated stop events of an observer scan (shared with the GPU).
+pub fn observer_setup<F: Real>(scan: &ObserverScan<F>, opt: &Options<F>) -> Result<Vec<Event<F>>> {
     if scan.spacetime.horizon().is_none() {
         return Err(Error::NotSupported(
             "observer scans need a spacetime with a horizon (schwarzschild)".into(),
@@ -385,6 +421,11 @@ pub fn observer_scan<F: Real>(
     let traces = par_collect("transport.observer", scan.angles_deg.len(), |i| {
         observer_trace(scan, &ev, opt, scan.angles_deg[i], dump.contains(&i))
     });
+    Ok(observer_out(traces, dump))
+}
+
+/// An observer scan's outputs from its traces (input order).
+pub fn observer_out<F: Real>(traces: Vec<Traced<F, 8>>, dump: &[usize]) -> ObserverOut<F> {
     let mut out = ObserverOut::default();
     for (i, (t, poly)) in traces.into_iter().enumerate() {
         if dump.contains(&i) {
@@ -400,7 +441,7 @@ pub fn observer_scan<F: Real>(
             t,
         );
     }
-    Ok(out)
+    out
 }
 
 /// The angle (degrees from the inward radial direction) separating
@@ -477,13 +518,25 @@ fn to_sphere(o: [f64; 3], d: [f64; 3], r: f64) -> Option<[f64; 3]> {
     Some([o[0] + t * d[0], o[1] + t * d[1], o[2] + t * d[2]])
 }
 
-/// Traces every GRIN ray of `task`.
-pub fn grin_rays<F: Real>(
+/// What a GRIN task traces: the medium the rays integrate (a lens-exit
+/// run continues the Luneburg formula past its sphere), the options (a
+/// `steps` stop sets `max_steps`), the stop events, and per ray its start
+/// state (`None`: it misses the lens). Shared with the GPU (`super::gpu`).
+#[derive(Clone, Debug)]
+pub struct GrinSetup<F> {
+    pub medium: Medium<F>,
+    pub opt: Options<F>,
+    pub events: Vec<Event<F>>,
+    pub starts: Vec<Option<[F; 6]>>,
+}
+
+/// Validates `task` and builds its [`GrinSetup`].
+pub fn grin_setup<F: Real>(
     task: &GrinRays<F>,
     opt: &Options<F>,
     budget: &MemBudget,
     dump: &[usize],
-) -> Result<GrinOut<F>> {
+) -> Result<GrinSetup<F>> {
     check_dump(dump, task.rays.len(), budget)?;
     budget_rays(budget, "grin rays", task.rays.len(), 96)?;
     let lens = task.medium.boundary_radius();
@@ -557,9 +610,35 @@ pub fn grin_rays<F: Real>(
             ]
         }));
     }
-    let traces = par_collect("transport.grin", starts.len(), |i| {
-        starts[i].map(|y0| traced(&medium, y0, &opt, &ev, dump.contains(&i), cart6))
+    Ok(GrinSetup {
+        medium,
+        opt,
+        events: ev,
+        starts,
+    })
+}
+
+/// Traces every GRIN ray of `task`.
+pub fn grin_rays<F: Real>(
+    task: &GrinRays<F>,
+    opt: &Options<F>,
+    budget: &MemBudget,
+    dump: &[usize],
+) -> Result<GrinOut<F>> {
+    let g = grin_setup(task, opt, budget, dump)?;
+    let traces = par_collect("transport.grin", g.starts.len(), |i| {
+        g.starts[i].map(|y0| traced(&g.medium, y0, &g.opt, &g.events, dump.contains(&i), cart6))
     });
+    Ok(grin_out(task, traces, dump))
+}
+
+/// A GRIN task's outputs from its traces (input order; `None`: the ray
+/// missed its lens).
+pub fn grin_out<F: Real>(
+    task: &GrinRays<F>,
+    traces: Vec<Option<Traced<F, 6>>>,
+    dump: &[usize],
+) -> GrinOut<F> {
     let mut out = GrinOut::default();
     for (i, t) in traces.into_iter().enumerate() {
         let t = t.map(|(t, poly)| {
@@ -597,7 +676,7 @@ pub fn grin_rays<F: Real>(
             }
         }
     }
-    Ok(out)
+    out
 }
 
 #[cfg(test)]

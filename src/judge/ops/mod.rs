@@ -24,6 +24,7 @@ mod rays;
 mod selftest;
 mod transport;
 mod transport_kerr;
+mod transport_gpu;
 mod volume;
 mod volume_diff;
 mod volume_fit;
@@ -207,6 +208,7 @@ pub fn table() -> impl Iterator<Item = &'static OpEntry> {
         pathtrace::OPS,
         transport::OPS,
         transport_kerr::OPS,
+        transport_gpu::OPS,
         voxels::OPS,
         voxels_dag::OPS,
         voxels_contour::OPS,

@@ -30,6 +30,7 @@
 use std::f64::consts::PI;
 use std::time::Instant;
 
+use super::transport_gpu as backend;
 use super::{OpCtx, OpEntry, Support};
 use crate::error::{Error, Result};
 use crate::real::Real;
@@ -46,7 +47,7 @@ use crate::transport::referee::{
 use crate::transport::tasks::{grin_rays, shadow_angle, GrinRays, GrinStop, Task};
 
 pub const OPS: &[OpEntry] = &[
-    OpEntry { name: "transport.render", doc: "trace a transport scene: deflection/captured/steps/h_drift, or GRIN exit points and periods", params: &[], support: Support::Cpu, run: render },
+    OpEntry { name: "transport.render", doc: "trace a transport scene: deflection/captured/steps/h_drift, or GRIN exit points and periods", params: &[], support: Support::CpuGpuF32, run: render },
     OpEntry {
         name: "transport.deflection_finite",
         doc: "finite-distance deflection by substitution + Gauss-Legendre (Schwarzschild), elliptic F (Ellis)",
@@ -83,12 +84,20 @@ fn render_in<F: Real>(ctx: &OpCtx, s: &TransportScene) -> Result<Outputs> {
         tracing::warn!("{}", b.line);
         out.counter("research_settings_hash", b.hash);
     }
-    run_task(&task, &opt, &ctx.budget, &s.dump_rays, &mut out)?;
+    run_task(
+        &task,
+        &opt,
+        &ctx.budget,
+        &s.dump_rays,
+        &mut out,
+        backend::gpu(ctx)?,
+    )?;
     Ok(out)
 }
 
 fn render(ctx: &OpCtx) -> Result<Outputs> {
     let s = scene(ctx)?;
+    backend::prepare(ctx, &s)?;
     by_precision!(ctx, render_in(ctx, &s))
 }
 
@@ -341,7 +350,7 @@ fn convergence_in<F: Real>(ctx: &OpCtx, s: &TransportScene, factors: &[f64]) -> 
             ..opt
         };
         let mut tmp = Outputs::default();
-        levels.push(run_task(&task, &o, &ctx.budget, &[], &mut tmp)?);
+        levels.push(run_task(&task, &o, &ctx.budget, &[], &mut tmp, None)?);
         steps.push(tmp.counters.get("steps").copied().unwrap_or(0) as f64);
     }
     let n = levels[0].len();
