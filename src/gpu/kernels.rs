@@ -36,6 +36,7 @@ pub const KERNELS: &[Kernel] = &[
     kernel!("rng"),
     kernel!("expm1"),
     kernel!("volume"),
+    kernel!("pathtrace"),
 ];
 
 /// The full source of kernel `name`: common.wgsl, then the file.

@@ -10,6 +10,7 @@ pub mod buffers;
 pub mod context;
 pub mod kernels;
 pub mod math;
+pub mod pathtrace;
 pub mod rays;
 pub mod volume;
 

@@ -9,6 +9,8 @@
 //! are rows too, so the runner never re-implements math.
 
 mod pathtrace;
+mod pathtrace_bsdf;
+mod pathtrace_gpu;
 mod rays;
 mod selftest;
 mod transport;
@@ -132,6 +134,8 @@ pub fn table() -> impl Iterator<Item = &'static OpEntry> {
         volume::OPS,
         volume_diff::OPS,
         pathtrace::OPS,
+        pathtrace_gpu::OPS,
+        pathtrace_bsdf::OPS,
         transport::OPS,
         voxels::OPS,
         selftest::OPS,

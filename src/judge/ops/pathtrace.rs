@@ -22,7 +22,7 @@ use glam::Vec3A;
 use serde::Deserialize;
 use statrs::distribution::{ContinuousCDF, Normal};
 
-use super::{OpCtx, OpEntry};
+use super::{BackendKind, OpCtx, OpEntry};
 use crate::error::{Error, Result};
 use crate::pathtrace::chi2::{chi2_test, sidak, Bins};
 use crate::pathtrace::integrator::first_hits;
@@ -101,11 +101,14 @@ pub const OPS: &[OpEntry] = &[
     },
 ];
 
-fn load(ctx: &OpCtx) -> Result<PathtraceScene> {
+pub(super) fn load(ctx: &OpCtx) -> Result<PathtraceScene> {
     crate::scene::pathtrace::parse(ctx.scene()?)
 }
 
 fn timed_render(s: &PathtraceScene, p: &RenderParams, ctx: &OpCtx) -> Result<(Image, f64)> {
+    if ctx.backend == BackendKind::Gpu {
+        return super::pathtrace_gpu::timed_render_gpu(s, p, ctx);
+    }
     let cam = s.camera.to_real::<f32>(p.width, p.height);
     let t = Instant::now();
     let img = render(&s.scene, &cam, p, &ctx.budget)?;
@@ -125,7 +128,6 @@ fn image_outputs(img: &Image, secs: f64, p: &RenderParams, out: &mut Outputs) ->
 }
 
 fn render_op(ctx: &OpCtx) -> Result<Outputs> {
-    ctx.cpu_only()?;
     let s = load(ctx)?;
     let (img, secs) = timed_render(&s, &s.params, ctx)?;
     let mut out = Outputs::default();
@@ -585,7 +587,6 @@ fn image_mean(img: &Image) -> ([f64; 3], [f64; 3]) {
 }
 
 fn furnace(ctx: &OpCtx) -> Result<Outputs> {
-    ctx.cpu_only()?;
     let s = load(ctx)?;
     let expect: [f64; 3] = ctx.param_req("expect")?;
     let (img, secs) = timed_render(&s, &s.params, ctx)?;
@@ -825,7 +826,6 @@ fn read_reference(ctx: &OpCtx, file: &str, w: usize, h: usize) -> Result<Image> 
 /// against an independent renderer's converged image (`params.reference`,
 /// relative to the manifest), and the unclamped RMSE.
 fn rmse_vs_reference(ctx: &OpCtx) -> Result<Outputs> {
-    ctx.cpu_only()?;
     let s = load(ctx)?;
     let file: String = ctx.param_req("reference")?;
     let reference = read_reference(
@@ -853,7 +853,6 @@ fn rmse_vs_reference(ctx: &OpCtx) -> Result<Outputs> {
 /// (relative to the manifest). Metrics `time_s_<spp>`; `plot_image` draws
 /// log RMSE against log seconds (see [`plot_loglog`]).
 fn speed_error(ctx: &OpCtx) -> Result<Outputs> {
-    ctx.cpu_only()?;
     let s = load(ctx)?;
     let spps: Vec<u32> = ctx.param_or("spp", vec![4, 16, 64, 256])?;
     let ref_spp: u32 = ctx.param_or("ref_spp", 4096)?;
