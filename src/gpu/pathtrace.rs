@@ -169,8 +169,14 @@ pub fn plan_chunks(
 fn validate(s: &PtScene) -> Result<()> {
     let at = "gpu pathtrace scene";
     let n = s.shapes.len();
-    if s.shapes.iter().any(|x| x.material as usize >= s.materials.len()) {
-        return Err(Error::invalid(at, "a shape's material index is out of range"));
+    if s.shapes
+        .iter()
+        .any(|x| x.material as usize >= s.materials.len())
+    {
+        return Err(Error::invalid(
+            at,
+            "a shape's material index is out of range",
+        ));
     }
     for &l in s.lights {
         let ok = s.shapes.get(l as usize).is_some_and(|q| {
@@ -331,7 +337,13 @@ mod tests {
     fn chunks_fill_a_submit_and_respect_the_loop_cap() {
         // 512 x 512 at 2^20 paths a submit: 4 samples over all pixels.
         let c = plan_chunks(512 * 512, 64, 9, 64, None, 1 << 20).unwrap();
-        assert_eq!(c, Chunks { samples: 4, pixels: 512 * 512 });
+        assert_eq!(
+            c,
+            Chunks {
+                samples: 4,
+                pixels: 512 * 512
+            }
+        );
         // Small images: at most spp, and under llvmpipe's cap (65535 / 1239 = 52).
         let c = plan_chunks(64, 1024, 9, 64, Some(65_535), 1 << 20).unwrap();
         assert_eq!(loop_iters_per_sample(9, 64), 1239);
@@ -340,7 +352,13 @@ mod tests {
         assert_eq!(c.samples, 16);
         // Huge images: one sample, pixel blocks.
         let c = plan_chunks(4096 * 4096, 4, 9, 64, None, 1 << 20).unwrap();
-        assert_eq!(c, Chunks { samples: 1, pixels: 1 << 20 });
+        assert_eq!(
+            c,
+            Chunks {
+                samples: 1,
+                pixels: 1 << 20
+            }
+        );
         // A path that alone could pass the cap is refused.
         assert!(plan_chunks(64, 4, 9, 1 << 20, Some(65_535), 1 << 20).is_err());
     }

@@ -137,7 +137,7 @@ pub fn z_test(a: &[f64], va: &[f64], b: &[f64], vb: &[f64]) -> ZTest {
     let mut z2 = 0.0;
     for i in 0..a.len().min(b.len()).min(va.len()).min(vb.len()) {
         let v = va[i] + vb[i];
-        if !(v > 0.0) {
+        if v.is_nan() || v <= 0.0 {
             if a[i] != b[i] {
                 r.zero_var_mismatch += 1;
             }
@@ -146,7 +146,7 @@ pub fn z_test(a: &[f64], va: &[f64], b: &[f64], vb: &[f64]) -> ZTest {
         let z = (a[i] - b[i]) / v.sqrt();
         r.tests += 1;
         z2 += z * z;
-        if !(z.abs() <= r.max_abs_z) {
+        if z.is_nan() || z.abs() > r.max_abs_z {
             r.max_abs_z = z.abs();
             r.worst = i;
         }

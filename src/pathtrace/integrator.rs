@@ -280,11 +280,7 @@ pub struct LightSample {
 /// light choice, uniform point on its area); `None` where the sample is
 /// worth 0 whatever blocks it.
 #[inline]
-pub fn light_sample(
-    scene: &Scene,
-    v: &Vertex,
-    rng: &PathRng,
-) -> Option<LightSample> {
+pub fn light_sample(scene: &Scene, v: &Vertex, rng: &PathRng) -> Option<LightSample> {
     let nl = scene.lights.len();
     let base = v.base;
     let pick = ((rng.f(base + dims::LIGHT_CHOICE) * nl as f32) as usize).min(nl - 1);
@@ -437,7 +433,8 @@ impl PathState {
         self.bounces += 1;
         if self.bounces >= rr_depth {
             let q = (self.beta * self.eta2).max_element().min(0.95);
-            if !(rng.f(base + dims::ROULETTE) < q) {
+            let u = rng.f(base + dims::ROULETTE);
+            if u.partial_cmp(&q) != Some(std::cmp::Ordering::Less) {
                 return false;
             }
             self.beta /= q;

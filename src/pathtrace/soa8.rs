@@ -137,7 +137,10 @@ impl Soa8 {
         let mut hit = 0u8;
         for s in 0..self.sid.len() {
             for k in (0..LANES).filter(|&k| lane(active, k)) {
-                let (o, d) = ([r.o[0][k], r.o[1][k], r.o[2][k]], [r.d[0][k], r.d[1][k], r.d[2][k]]);
+                let (o, d) = (
+                    [r.o[0][k], r.o[1][k], r.o[2][k]],
+                    [r.d[0][k], r.d[1][k], r.d[2][k]],
+                );
                 let c = [self.sc[0][s], self.sc[1][s], self.sc[2][s]];
                 if let Some(t) = sphere_lane(c, self.sr2[s], o, d, tb[k]) {
                     tb[k] = t;
@@ -153,7 +156,10 @@ impl Soa8 {
             let g = |v: &[Vec<f32>; 3]| [v[0][q], v[1][q], v[2][q]];
             let (c, n, ua, vb) = (g(&self.qc), g(&self.qn), g(&self.qua), g(&self.qvb));
             for k in (0..LANES).filter(|&k| lane(active, k)) {
-                let (o, d) = ([r.o[0][k], r.o[1][k], r.o[2][k]], [r.d[0][k], r.d[1][k], r.d[2][k]]);
+                let (o, d) = (
+                    [r.o[0][k], r.o[1][k], r.o[2][k]],
+                    [r.d[0][k], r.d[1][k], r.d[2][k]],
+                );
                 if let Some(t) = quad_lane(c, n, ua, vb, o, d, tb[k]) {
                     tb[k] = t;
                     id[k] = self.qid[q];
@@ -220,10 +226,14 @@ fn quad_lane(
     let dn = d[0] * n[0] + d[1] * n[1] + d[2] * n[2];
     let num = (c[0] - o[0]) * n[0] + (c[1] - o[1]) * n[1] + (c[2] - o[2]) * n[2];
     let t = num / dn;
-    let (hx, hy, hz) = (o[0] + t * d[0] - c[0], o[1] + t * d[1] - c[1], o[2] + t * d[2] - c[2]);
+    let (hx, hy, hz) = (
+        o[0] + t * d[0] - c[0],
+        o[1] + t * d[1] - c[1],
+        o[2] + t * d[2] - c[2],
+    );
     let a = hx * ua[0] + hy * ua[1] + hz * ua[2];
     let b = hx * vb[0] + hy * vb[1] + hz * vb[2];
-    let ok = t > 0.0 && t < tbest && a >= 0.0 && a <= 1.0 && b >= 0.0 && b <= 1.0;
+    let ok = t > 0.0 && t < tbest && (0.0..=1.0).contains(&a) && (0.0..=1.0).contains(&b);
     ok.then_some(t)
 }
 
@@ -270,7 +280,11 @@ mod avx2 {
             let m = _mm256_movemask_ps(ok);
             if m != 0 {
                 *tbest = _mm256_blendv_ps(*tbest, t, ok);
-                *ids = _mm256_blendv_epi8(*ids, _mm256_set1_epi32(shape as i32), _mm256_castps_si256(ok));
+                *ids = _mm256_blendv_epi8(
+                    *ids,
+                    _mm256_set1_epi32(shape as i32),
+                    _mm256_castps_si256(ok),
+                );
             }
             m
         };
@@ -284,7 +298,11 @@ mod avx2 {
             let (fx, fy, fz) = (sub(ox, cx), sub(oy, cy), sub(oz, cz));
             let b = _mm256_xor_ps(add(add(mul(fx, dx), mul(fy, dy)), mul(fz, dz)), sign);
             let c = sub(add(add(mul(fx, fx), mul(fy, fy)), mul(fz, fz)), r2);
-            let (lx, ly, lz) = (add(fx, mul(b, dx)), add(fy, mul(b, dy)), add(fz, mul(b, dz)));
+            let (lx, ly, lz) = (
+                add(fx, mul(b, dx)),
+                add(fy, mul(b, dy)),
+                add(fz, mul(b, dz)),
+            );
             let disc = sub(r2, add(add(mul(lx, lx), mul(ly, ly)), mul(lz, lz)));
             let root = _mm256_sqrt_ps(_mm256_max_ps(disc, zero));
             let neg = _mm256_cmp_ps::<_CMP_LT_OQ>(b, zero);
@@ -365,42 +383,15 @@ mod avx2 {
 mod tests {
     use super::*;
     use crate::pathtrace::packed::Packed;
-    use crate::pathtrace::shapes::{Quad, Sphere};
     use crate::rng::rand_f32;
     use glam::Vec3A;
-
-    fn cornell() -> Vec<Shape> {
-        let v = Vec3A::new;
-        let mut shapes = vec![];
-        for (c, u, w) in [
-            (v(-1.0, -1.0, -1.0), v(0.0, 0.0, 2.0), v(0.0, 2.0, 0.0)),
-            (v(1.0, -1.0, -1.0), v(0.0, 2.0, 0.0), v(0.0, 0.0, 2.0)),
-            (v(-1.0, -1.0, -1.0), v(0.0, 2.0, 0.0), v(2.0, 0.0, 0.0)),
-            (v(-1.0, -1.0, -1.0), v(2.0, 0.0, 0.0), v(0.0, 0.0, 2.0)),
-            (v(-1.0, 1.0, -1.0), v(0.0, 0.0, 2.0), v(2.0, 0.0, 0.0)),
-            (v(-0.25, 0.99, -0.25), v(0.5, 0.0, 0.0), v(0.0, 0.0, 0.5)),
-            (v(0.0, 0.0, 0.0), v(0.3, 0.0, -0.3), v(0.0, 0.4, 0.1)),
-        ] {
-            shapes.push(Shape::Quad(Quad::new(c, u, w).unwrap()));
-        }
-        for (c, r) in [
-            (v(0.4, -0.6, -0.2), 0.4),
-            (v(-0.4, -0.7, 0.3), 0.3),
-            (v(0.0, -0.8, 0.5), 0.2),
-        ] {
-            shapes.push(Shape::Sphere(Sphere {
-                centre: c,
-                radius: r,
-            }));
-        }
-        shapes
-    }
 
     /// Both packet implementations equal the per-ray `Packed` test bit for
     /// bit (t and shape), for nearest hits and shadow tests, with lanes off.
     #[test]
+    #[allow(clippy::needless_range_loop)]
     fn packets_equal_the_per_ray_test_bit_for_bit() {
-        let shapes = cornell();
+        let shapes = crate::pathtrace::packed::cornell_shapes();
         let p = Packed::new(&shapes);
         for portable in [false, true] {
             let s = Soa8::new(&shapes, portable);
@@ -432,7 +423,11 @@ mod tests {
                     match p.intersect(o, d, f32::INFINITY) {
                         Some((tp, ip)) => {
                             hits += 1;
-                            assert_eq!((t[k].to_bits(), id[k]), (tp.to_bits(), ip as u32), "lane {k} ray {i}");
+                            assert_eq!(
+                                (t[k].to_bits(), id[k]),
+                                (tp.to_bits(), ip as u32),
+                                "lane {k} ray {i}"
+                            );
                         }
                         None => assert_eq!(id[k], u32::MAX),
                     }

@@ -36,7 +36,9 @@ pub fn trace8(
     let mut active: u8 = if n >= LANES { 0xff } else { (1u8 << n) - 1 };
     let mut verts: [Option<Vertex>; LANES] = [None; LANES];
     while active != 0 {
-        let (t, id) = scene.soa().intersect8(&pack(&st, active, |s| (s.o, s.d)), active);
+        let (t, id) = scene
+            .soa()
+            .intersect8(&pack(&st, active, |s| (s.o, s.d)), active);
         let mut shadow = [None; LANES];
         for k in 0..LANES {
             verts[k] = None;
@@ -107,17 +109,35 @@ mod tests {
     fn packet_render_equals_the_scalar_render_bit_for_bit() {
         let v = Vec3A::new;
         let quad = |c, u, w| Shape::Quad(Quad::new(c, u, w).unwrap());
-        let ball = |c, r| Shape::Sphere(Sphere { centre: c, radius: r });
+        let ball = |c, r| {
+            Shape::Sphere(Sphere {
+                centre: c,
+                radius: r,
+            })
+        };
         let objs = [
-            (quad(v(-0.3, 1.5, -0.3), v(0.6, 0.0, 0.0), v(0.0, 0.0, 0.6)), 1),
-            (quad(v(-2.0, -1.0, -2.0), v(0.0, 0.0, 4.0), v(4.0, 0.0, 0.0)), 0),
+            (
+                quad(v(-0.3, 1.5, -0.3), v(0.6, 0.0, 0.0), v(0.0, 0.0, 0.6)),
+                1,
+            ),
+            (
+                quad(v(-2.0, -1.0, -2.0), v(0.0, 0.0, 4.0), v(4.0, 0.0, 0.0)),
+                0,
+            ),
             (ball(v(-0.5, 0.0, 0.0), 0.5), 2),
             (ball(v(0.6, -0.3, 0.2), 0.4), 3),
         ];
         let mats = vec![
-            Material::Lambertian { albedo: Vec3A::splat(0.7) },
-            Material::Emitter { radiance: Vec3A::splat(10.0) },
-            Material::RoughConductor { alpha: 0.1, reflectance: v(0.8, 0.8, 0.9) },
+            Material::Lambertian {
+                albedo: Vec3A::splat(0.7),
+            },
+            Material::Emitter {
+                radiance: Vec3A::splat(10.0),
+            },
+            Material::RoughConductor {
+                alpha: 0.1,
+                reflectance: v(0.8, 0.8, 0.9),
+            },
             Material::Dielectric { ior: 1.5 },
         ];
         let scene = Scene::new(&objs, mats, [0.1, 0.1, 0.1]).unwrap();

@@ -32,7 +32,7 @@ fn reflectance_applied(ctx: &OpCtx) -> Result<Outputs> {
     let n: u32 = ctx.param_or("samples", 10_000)?;
     let alpha: f32 = ctx.param_or("alpha", 0.1)?;
     let r: [f32; 3] = ctx.param_or("reflectance", [0.8, 0.8, 0.9])?;
-    if thetas.iter().any(|t| !(0.0..90.0).contains(t)) || n == 0 || !(alpha > 0.0) {
+    if thetas.iter().any(|t| !(0.0..90.0).contains(t)) || n == 0 || alpha.is_nan() || alpha <= 0.0 {
         return Err(Error::invalid(
             format!("{} params", ctx.case_id),
             "thetas in [0, 90) degrees, samples >= 1, alpha > 0",
@@ -55,7 +55,10 @@ fn reflectance_applied(ctx: &OpCtx) -> Result<Outputs> {
             let wi = crate::pathtrace::bsdf::cosine_hemisphere([u(0), u(1)]);
             acc(&mut e, m.eval(wo, wi));
             acc(&mut e1, one.eval(wo, wi));
-            let (a, b) = (m.sample(wo, u(2), [u(3), u(4)]), one.sample(wo, u(2), [u(3), u(4)]));
+            let (a, b) = (
+                m.sample(wo, u(2), [u(3), u(4)]),
+                one.sample(wo, u(2), [u(3), u(4)]),
+            );
             if let (Some(a), Some(b)) = (a, b) {
                 acc(&mut w, a.weight);
                 acc(&mut w1, b.weight);
