@@ -38,6 +38,7 @@ pub const KERNELS: &[Kernel] = &[
     kernel!("volume"),
     kernel!("voxels"),
     kernel!("transport"),
+    kernel!("pathtrace"),
 ];
 
 /// The full source of kernel `name`: common.wgsl, then the file.

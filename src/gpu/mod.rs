@@ -13,6 +13,7 @@ pub mod codes;
 pub mod context;
 pub mod kernels;
 pub mod math;
+pub mod pathtrace;
 pub mod rays;
 pub mod transport;
 pub mod volume;

@@ -32,6 +32,8 @@ use glam::Vec3A;
 use super::bsdf::{Frame, Material};
 use super::packed::Packed;
 use super::shapes::{spawn_origin, Shape};
+use super::soa8::{Soa8, LANES};
+use super::trace8::trace8;
 use crate::budget::{bytes_for, MemBudget};
 use crate::camera::RealCamera;
 use crate::error::{Error, Result};
@@ -86,6 +88,7 @@ pub struct Scene {
     lights: Vec<u32>,
     environment: Vec3A,
     packed: Packed,
+    soa: Soa8,
 }
 
 impl Scene {
@@ -161,6 +164,7 @@ impl Scene {
             lights,
             environment: env,
             packed: Packed::new(&objects.iter().map(|o| o.0).collect::<Vec<_>>()),
+            soa: Soa8::new(&objects.iter().map(|o| o.0).collect::<Vec<_>>(), false),
         })
     }
 
@@ -173,6 +177,31 @@ impl Scene {
     pub fn material(&self, i: usize) -> Material {
         self.materials[self.material_of[i] as usize]
     }
+
+    /// The shapes in SoA form for eight-ray packets.
+    pub fn soa(&self) -> &Soa8 {
+        &self.soa
+    }
+
+    /// The materials, indexed by [`Scene::material_index`].
+    pub fn materials(&self) -> &[Material] {
+        &self.materials
+    }
+
+    /// The index into [`Scene::materials`] of shape `i`'s material.
+    pub fn material_index(&self, i: usize) -> u32 {
+        self.material_of[i]
+    }
+
+    /// Indices of the emitting quads.
+    pub fn lights(&self) -> &[u32] {
+        &self.lights
+    }
+
+    /// Uniform radiance of rays that leave the scene.
+    pub fn environment(&self) -> Vec3A {
+        self.environment
+    }
 }
 
 /// How to render: image size, samples, seed and path-length controls.
@@ -184,6 +213,9 @@ pub struct RenderParams {
     pub seed: u32,
     pub max_bounces: u32,
     pub rr_depth: u32,
+    /// Trace eight samples of a pixel at a time (`trace8`); `false`: the
+    /// scalar path, one ray at a time (the referee). The same image.
+    pub packet: bool,
 }
 
 impl RenderParams {
@@ -233,123 +265,216 @@ fn power(a: f32, b: f32) -> f32 {
     }
 }
 
-/// Light sampling at a non-delta vertex: `beta`-less contribution
-/// `f |cos_i| Le w_l / p_l`.
+/// A light sample prepared at a non-delta vertex: the shadow ray (`o`,
+/// `wi`, `tmax`) and the `beta`-less contribution `f |cos_i| Le w_l / p_l`
+/// it adds when nothing blocks it.
+#[derive(Clone, Copy, Debug)]
+pub struct LightSample {
+    pub o: Vec3A,
+    pub wi: Vec3A,
+    pub tmax: f32,
+    pub value: Vec3A,
+}
+
+/// Light sampling at a non-delta vertex up to the shadow test (uniform
+/// light choice, uniform point on its area); `None` where the sample is
+/// worth 0 whatever blocks it.
 #[inline]
-fn sample_light(
-    scene: &Scene,
-    p: Vec3A,
-    n: Vec3A,
-    frame: &Frame,
-    wo: Vec3A,
-    mat: &Material,
-    rng: &PathRng,
-    base: u32,
-) -> Vec3A {
+pub fn light_sample(scene: &Scene, v: &Vertex, rng: &PathRng) -> Option<LightSample> {
     let nl = scene.lights.len();
+    let base = v.base;
     let pick = ((rng.f(base + dims::LIGHT_CHOICE) * nl as f32) as usize).min(nl - 1);
     let li = scene.lights[pick] as usize;
     let Shape::Quad(q) = scene.shapes[li] else {
-        return Vec3A::ZERO;
+        return None;
     };
     let Material::Emitter { radiance } = scene.material(li) else {
-        return Vec3A::ZERO;
+        return None;
     };
     let x = q.point(rng.f(base + dims::LIGHT_U), rng.f(base + dims::LIGHT_V));
-    let to = x - p;
+    let to = x - v.p;
     let dist2 = to.length_squared();
     if dist2 == 0.0 {
-        return Vec3A::ZERO;
+        return None;
     }
     let dist = dist2.sqrt();
     let wi = to / dist;
     let cos_l = -wi.dot(q.normal());
     if cos_l <= 0.0 {
-        return Vec3A::ZERO;
+        return None;
     }
-    let wl = frame.to_local(wi);
-    let f = mat.eval(wo, wl);
+    let wl = v.frame.to_local(wi);
+    let f = v.mat.eval(v.wo, wl);
     if f == Vec3A::ZERO {
-        return Vec3A::ZERO;
+        return None;
     }
-    let o = spawn_origin(p, n, wi);
-    if scene
-        .packed
-        .occluded(o, wi, (x - o).length() * (1.0 - 1e-4))
-    {
-        return Vec3A::ZERO;
-    }
+    let o = spawn_origin(v.p, v.n, wi);
     let pl = dist2 / (cos_l * q.area() * nl as f32);
-    let w = power(pl, mat.pdf(wo, wl));
-    f * (wl.z.abs() * w / pl) * radiance
+    let w = power(pl, v.mat.pdf(v.wo, wl));
+    Some(LightSample {
+        o,
+        wi,
+        tmax: (x - o).length() * (1.0 - 1e-4),
+        value: f * (wl.z.abs() * w / pl) * radiance,
+    })
 }
 
-/// Radiance along the camera ray `o + t d` (`d` unit) for one sample.
-#[inline]
-pub fn trace(
-    scene: &Scene,
-    mut o: Vec3A,
-    mut d: Vec3A,
-    rng: &PathRng,
-    max_bounces: u32,
-    rr_depth: u32,
-) -> Vec3A {
-    let mut l = Vec3A::ZERO;
-    let mut beta = Vec3A::ONE;
-    let mut eta2 = 1.0f32;
-    let mut prev_pdf = 0.0f32;
-    let mut prev_delta = true;
-    let mut bounces = 0u32;
-    loop {
-        let Some((t, idx)) = scene.packed.intersect(o, d, f32::INFINITY) else {
-            l += beta * scene.environment;
-            break;
-        };
+/// A scattering vertex: hit point, geometric normal, shading frame, `wo`
+/// in local space, material and the vertex's first random dimension.
+#[derive(Clone, Copy, Debug)]
+pub struct Vertex {
+    pub p: Vec3A,
+    pub n: Vec3A,
+    pub frame: Frame,
+    pub wo: Vec3A,
+    pub mat: Material,
+    pub base: u32,
+}
+
+/// One path's state between vertices.
+#[derive(Clone, Copy, Debug)]
+pub struct PathState {
+    pub o: Vec3A,
+    pub d: Vec3A,
+    pub l: Vec3A,
+    beta: Vec3A,
+    eta2: f32,
+    prev_pdf: f32,
+    prev_delta: bool,
+    bounces: u32,
+}
+
+impl PathState {
+    /// A camera path along `o + t d` (`d` unit).
+    #[inline]
+    pub fn new(o: Vec3A, d: Vec3A) -> PathState {
+        PathState {
+            o,
+            d,
+            l: Vec3A::ZERO,
+            beta: Vec3A::ONE,
+            eta2: 1.0,
+            prev_pdf: 0.0,
+            prev_delta: true,
+            bounces: 0,
+        }
+    }
+
+    /// The ray left the scene: add the environment.
+    #[inline]
+    pub fn miss(&mut self, scene: &Scene) {
+        self.l += self.beta * scene.environment;
+    }
+
+    /// The ray met shape `idx` at `t`: adds emission seen through BSDF
+    /// sampling (MIS-weighted after a non-delta bounce) and returns the
+    /// vertex to scatter from, or `None` when the path ends here (a light,
+    /// or `max_bounces` reached).
+    #[inline]
+    pub fn hit(&mut self, scene: &Scene, t: f32, idx: usize, max_bounces: u32) -> Option<Vertex> {
         let shape = scene.shapes[idx];
         let mat = scene.material(idx);
-        let (p, n) = shape.surface(o, d, t);
+        let (p, n) = shape.surface(self.o, self.d, t);
         let frame = Frame::new(n);
-        let wo = frame.to_local(-d);
+        let wo = frame.to_local(-self.d);
         if let Material::Emitter { radiance } = mat {
             if wo.z > 0.0 {
                 let w = match shape {
-                    Shape::Quad(q) if !prev_delta => power(
-                        prev_pdf,
+                    Shape::Quad(q) if !self.prev_delta => power(
+                        self.prev_pdf,
                         t * t / (wo.z * q.area() * scene.lights.len() as f32),
                     ),
                     _ => 1.0,
                 };
-                l += beta * radiance * w;
+                self.l += self.beta * radiance * w;
             }
-            break;
+            return None;
         }
-        if bounces >= max_bounces {
-            break;
+        if self.bounces >= max_bounces {
+            return None;
         }
-        let base = dims::FIRST_VERTEX + dims::STRIDE * bounces;
-        if !mat.is_delta() && !scene.lights.is_empty() {
-            l += beta * sample_light(scene, p, n, &frame, wo, &mat, rng, base);
-        }
+        Some(Vertex {
+            p,
+            n,
+            frame,
+            wo,
+            mat,
+            base: dims::FIRST_VERTEX + dims::STRIDE * self.bounces,
+        })
+    }
+
+    /// Whether vertex `v` samples a light (non-delta, the scene has lights).
+    #[inline]
+    pub fn samples_light(scene: &Scene, v: &Vertex) -> bool {
+        !v.mat.is_delta() && !scene.lights.is_empty()
+    }
+
+    /// Adds a light sample's contribution (0 when blocked or worthless).
+    #[inline]
+    pub fn add_light(&mut self, value: Vec3A) {
+        self.l += self.beta * value;
+    }
+
+    /// Samples the BSDF at `v` and moves the path on; Russian roulette
+    /// after `rr_depth` bounces. `false` when the path ends.
+    #[inline]
+    pub fn scatter(&mut self, v: &Vertex, rng: &PathRng, rr_depth: u32) -> bool {
+        let base = v.base;
         let u = [rng.f(base + dims::BSDF_U), rng.f(base + dims::BSDF_V)];
-        let Some(s) = mat.sample(wo, rng.f(base + dims::LOBE), u) else {
+        let Some(s) = v.mat.sample(v.wo, rng.f(base + dims::LOBE), u) else {
+            return false;
+        };
+        self.beta *= s.weight;
+        self.eta2 *= s.eta2;
+        self.prev_pdf = s.pdf;
+        self.prev_delta = s.delta;
+        self.d = v.frame.to_world(s.wi).normalize();
+        self.o = spawn_origin(v.p, v.n, self.d);
+        self.bounces += 1;
+        if self.bounces >= rr_depth {
+            let q = (self.beta * self.eta2).max_element().min(0.95);
+            let u = rng.f(base + dims::ROULETTE);
+            if u.partial_cmp(&q) != Some(std::cmp::Ordering::Less) {
+                return false;
+            }
+            self.beta /= q;
+        }
+        true
+    }
+}
+
+/// Radiance along the camera ray `o + t d` (`d` unit) for one sample: the
+/// scalar path, one ray at a time (the referee of `packet_trace`).
+#[inline]
+pub fn trace(
+    scene: &Scene,
+    o: Vec3A,
+    d: Vec3A,
+    rng: &PathRng,
+    max_bounces: u32,
+    rr_depth: u32,
+) -> Vec3A {
+    let mut st = PathState::new(o, d);
+    loop {
+        let Some((t, idx)) = scene.packed.intersect(st.o, st.d, f32::INFINITY) else {
+            st.miss(scene);
             break;
         };
-        beta *= s.weight;
-        eta2 *= s.eta2;
-        prev_pdf = s.pdf;
-        prev_delta = s.delta;
-        d = frame.to_world(s.wi).normalize();
-        o = spawn_origin(p, n, d);
-        bounces += 1;
-        if bounces >= rr_depth {
-            let q = (beta * eta2).max_element().min(0.95);
-            if !(rng.f(base + dims::ROULETTE) < q) {
-                break;
-            }
-            beta /= q;
+        let Some(v) = st.hit(scene, t, idx, max_bounces) else {
+            break;
+        };
+        if PathState::samples_light(scene, &v) {
+            let value = match light_sample(scene, &v, rng) {
+                Some(ls) if !scene.packed.occluded(ls.o, ls.wi, ls.tmax) => ls.value,
+                _ => Vec3A::ZERO,
+            };
+            st.add_light(value);
+        }
+        if !st.scatter(&v, rng, rr_depth) {
+            break;
         }
     }
-    l
+    st.l
 }
 
 /// Mean radiance of `spp` samples of pixel `(u, v)` and the sum of squares
@@ -365,27 +490,39 @@ fn pixel_sums(
 ) -> ([f64; 3], [f64; 3], u64) {
     let pixel = v * p.width + u;
     let (mut sum, mut sq, mut bad) = ([0.0f64; 3], [0.0f64; 3], 0u64);
-    for s in 0..p.spp {
-        let rng = PathRng::new(p.seed, pixel, s);
-        let px = u as f32 + rng.f(dims::JITTER_X);
-        let py = v as f32 + rng.f(dims::JITTER_Y);
-        let (o, d) = cam.ray(px, py);
-        let l = trace(
-            scene,
-            Vec3A::from_array(o),
-            Vec3A::from_array(d),
-            &rng,
-            p.max_bounces,
-            p.rr_depth,
-        );
+    let mut fold = |l: Vec3A| {
         if !l.is_finite() {
             bad += 1;
-            continue;
+            return;
         }
         for c in 0..3 {
             let x = l[c] as f64;
             sum[c] += x;
             sq[c] += x * x;
+        }
+    };
+    let camera_ray = |rng: &PathRng| {
+        let px = u as f32 + rng.f(dims::JITTER_X);
+        let py = v as f32 + rng.f(dims::JITTER_Y);
+        let (o, d) = cam.ray(px, py);
+        (Vec3A::from_array(o), Vec3A::from_array(d))
+    };
+    if p.packet {
+        for s0 in (0..p.spp).step_by(LANES) {
+            let n = (p.spp - s0).min(LANES as u32) as usize;
+            let rngs: [PathRng; LANES] =
+                std::array::from_fn(|k| PathRng::new(p.seed, pixel, s0 + k as u32));
+            let rays = std::array::from_fn(|k| camera_ray(&rngs[k]));
+            let ls = trace8(scene, &rays, &rngs, n, p.max_bounces, p.rr_depth);
+            for &l in &ls[..n] {
+                fold(l);
+            }
+        }
+    } else {
+        for s in 0..p.spp {
+            let rng = PathRng::new(p.seed, pixel, s);
+            let (o, d) = camera_ray(&rng);
+            fold(trace(scene, o, d, &rng, p.max_bounces, p.rr_depth));
         }
     }
     (sum, sq, bad)
@@ -498,6 +635,7 @@ mod tests {
             seed: 1,
             max_bounces: 64,
             rr_depth: 5,
+            packet: true,
         }
     }
 

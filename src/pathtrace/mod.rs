@@ -5,18 +5,24 @@
 //! quads, the one intersection function; [`packed`] runs it four shapes at
 //! a time for rendering), [`bsdf`] (materials: a closed
 //! enum), [`integrator`] (NEE + MIS path loop, Russian roulette, tiles over
-//! rayon). Beside them: [`referee`] (independent f64 references that never
-//! call these stages), [`checks`] (harnesses that run the stages against the
-//! referees and `crate::stats`) and [`listed`] (listed-ray problems).
+//! rayon), [`gpu`] (the same render on the GPU: `kernels/pathtrace.wgsl`),
+//! [`soa8`] and [`trace8`] (eight samples of a pixel at a time, SIMD across
+//! rays; the scalar `integrator::trace` is their referee). Beside them:
+//! [`referee`] (independent f64 references that never call these stages),
+//! [`checks`] (harnesses that run the stages against the referees and
+//! `crate::stats`) and [`listed`] (listed-ray problems).
 //! The renderer takes typed parameters; `scene/pathtrace.rs` builds them.
 
 pub mod bsdf;
 pub mod checks;
+pub mod gpu;
 pub mod integrator;
 pub mod listed;
 pub mod packed;
 pub mod referee;
 pub mod shapes;
+pub mod soa8;
+pub mod trace8;
 
 pub use bsdf::Material;
 pub use integrator::{render, Image, RenderParams, Scene};

@@ -161,37 +161,46 @@ impl Packed {
     }
 }
 
+/// The Cornell box's walls, light and spheres plus one tilted quad (test scenes).
+#[cfg(test)]
+pub(crate) fn cornell_shapes() -> Vec<Shape> {
+    use super::shapes::{Quad, Sphere};
+    let v = Vec3A::new;
+    let mut shapes = vec![];
+    for (c, u, w) in [
+        (v(-1.0, -1.0, -1.0), v(0.0, 0.0, 2.0), v(0.0, 2.0, 0.0)),
+        (v(1.0, -1.0, -1.0), v(0.0, 2.0, 0.0), v(0.0, 0.0, 2.0)),
+        (v(-1.0, -1.0, -1.0), v(0.0, 2.0, 0.0), v(2.0, 0.0, 0.0)),
+        (v(-1.0, -1.0, -1.0), v(2.0, 0.0, 0.0), v(0.0, 0.0, 2.0)),
+        (v(-1.0, 1.0, -1.0), v(0.0, 0.0, 2.0), v(2.0, 0.0, 0.0)),
+        (v(-0.25, 0.99, -0.25), v(0.5, 0.0, 0.0), v(0.0, 0.0, 0.5)),
+        (v(0.0, 0.0, 0.0), v(0.3, 0.0, -0.3), v(0.0, 0.4, 0.1)),
+    ] {
+        shapes.push(Shape::Quad(Quad::new(c, u, w).unwrap()));
+    }
+    for (c, r) in [
+        (v(0.4, -0.6, -0.2), 0.4),
+        (v(-0.4, -0.7, 0.3), 0.3),
+        (v(0.0, -0.8, 0.5), 0.2),
+    ] {
+        shapes.push(Shape::Sphere(Sphere {
+            centre: c,
+            radius: r,
+        }));
+    }
+    shapes
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::pathtrace::shapes::{intersect, occluded, Quad, Sphere};
+    use crate::pathtrace::shapes::{intersect, occluded};
     use crate::rng::rand_f32;
 
     #[test]
     fn packed_agrees_with_the_scalar_loop() {
         let v = Vec3A::new;
-        let mut shapes = vec![];
-        for (c, u, w) in [
-            (v(-1.0, -1.0, -1.0), v(0.0, 0.0, 2.0), v(0.0, 2.0, 0.0)),
-            (v(1.0, -1.0, -1.0), v(0.0, 2.0, 0.0), v(0.0, 0.0, 2.0)),
-            (v(-1.0, -1.0, -1.0), v(0.0, 2.0, 0.0), v(2.0, 0.0, 0.0)),
-            (v(-1.0, -1.0, -1.0), v(2.0, 0.0, 0.0), v(0.0, 0.0, 2.0)),
-            (v(-1.0, 1.0, -1.0), v(0.0, 0.0, 2.0), v(2.0, 0.0, 0.0)),
-            (v(-0.25, 0.99, -0.25), v(0.5, 0.0, 0.0), v(0.0, 0.0, 0.5)),
-            (v(0.0, 0.0, 0.0), v(0.3, 0.0, -0.3), v(0.0, 0.4, 0.1)),
-        ] {
-            shapes.push(Shape::Quad(Quad::new(c, u, w).unwrap()));
-        }
-        for (c, r) in [
-            (v(0.4, -0.6, -0.2), 0.4),
-            (v(-0.4, -0.7, 0.3), 0.3),
-            (v(0.0, -0.8, 0.5), 0.2),
-        ] {
-            shapes.push(Shape::Sphere(Sphere {
-                centre: c,
-                radius: r,
-            }));
-        }
+        let shapes = cornell_shapes();
         let p = Packed::new(&shapes);
         let mut hits = 0;
         for i in 0..50_000u32 {

@@ -92,6 +92,11 @@ impl Quad {
         self.area
     }
 
+    /// The axis the plane is perpendicular to (0..2), or 3 for a tilted plane.
+    pub fn axis(&self) -> usize {
+        self.axis
+    }
+
     /// The point at parameters (a, b) in [0, 1]^2 (uniform in area).
     #[inline]
     pub fn point(&self, a: f32, b: f32) -> Vec3A {

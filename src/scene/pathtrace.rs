@@ -7,6 +7,7 @@
 //! | `seed` | first key of `rand(seed, pixel, sample, dim)` | 0 |
 //! | `max_bounces` | most scattering events on a path (camera ray hitting a light = 0) | 64 |
 //! | `rr_depth` | bounces before Russian roulette starts | 5 |
+//! | `packet` | trace 8 samples of a pixel at once (SIMD across rays); `false`: the scalar path (the same image) | true |
 //! | `environment` | uniform radiance of every ray that leaves the scene | [0, 0, 0] |
 //! | `materials` | name -> material (below) | required |
 //! | `shapes` | list of shapes (below) | required |
@@ -40,6 +41,9 @@ fn sixty_four() -> u32 {
 }
 fn five() -> u32 {
     5
+}
+fn yes() -> bool {
+    true
 }
 
 /// A material as written in a scene file.
@@ -86,6 +90,8 @@ pub struct PathtraceRest {
     pub max_bounces: u32,
     #[serde(default = "five")]
     pub rr_depth: u32,
+    #[serde(default = "yes")]
+    pub packet: bool,
     #[serde(default)]
     pub environment: [f32; 3],
     pub materials: BTreeMap<String, MaterialSpec>,
@@ -191,6 +197,7 @@ pub fn parse(doc: &SceneDoc) -> Result<PathtraceScene> {
         seed: rest.seed,
         max_bounces: rest.max_bounces,
         rr_depth: rest.rr_depth,
+        packet: rest.packet,
     };
     params
         .validate()

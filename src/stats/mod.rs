@@ -17,9 +17,11 @@ pub mod image;
 pub mod ks;
 pub mod quadrature;
 pub mod summary;
+pub mod ztest;
 
 pub use ks::ks_uniform_p;
 pub use summary::quartiles;
+pub use ztest::{z_test, ZTest};
 
 /// Šidák-corrected per-test significance level for `tests` tests at
 /// family-wise level `alpha`: `1 - (1 - alpha)^(1 / tests)`.

@@ -20,6 +20,8 @@ macro_rules! by_precision {
 }
 
 mod pathtrace;
+mod pathtrace_bsdf;
+mod pathtrace_gpu;
 mod rays;
 mod selftest;
 mod transport;
@@ -206,6 +208,8 @@ pub fn table() -> impl Iterator<Item = &'static OpEntry> {
         volume_hash::OPS,
         volume_fit::OPS,
         pathtrace::OPS,
+        pathtrace_gpu::OPS,
+        pathtrace_bsdf::OPS,
         transport::OPS,
         transport_kerr::OPS,
         transport_gpu::OPS,

@@ -21,7 +21,7 @@ use std::time::Instant;
 
 use glam::Vec3A;
 
-use super::{OpCtx, OpEntry, Support};
+use super::{BackendKind, OpCtx, OpEntry, Support};
 use crate::error::{Error, Result};
 use crate::judge::plot::{plot_loglog, PLOT_H, PLOT_W};
 use crate::pathtrace::checks::{bsdf_checks, region_sum, self_intersection, Region};
@@ -39,7 +39,7 @@ pub const OPS: &[OpEntry] = &[
         name: "pathtrace.render",
         doc: "path-traced image (H, W, 3) and variance of the pixel mean; metrics time_s, paths_per_s",
         params: &[],
-        support: Support::Cpu,
+        support: Support::CpuGpuF32,
         run: render_op,
     },
     OpEntry {
@@ -74,7 +74,7 @@ pub const OPS: &[OpEntry] = &[
         name: "pathtrace.furnace",
         doc: "render + mean (3,), z-score of the mean against params.expect, max pixel_err",
         params: &["expect"],
-        support: Support::Cpu,
+        support: Support::CpuGpuF32,
         run: furnace,
     },
     OpEntry {
@@ -102,23 +102,26 @@ pub const OPS: &[OpEntry] = &[
         name: "pathtrace.rmse_vs_reference",
         doc: "render + rmse (clamped [0,1]) and rmse_raw against params.reference (an (H, W, 3) float32 .npy)",
         params: &["reference"],
-        support: Support::Cpu,
+        support: Support::CpuGpuF32,
         run: rmse_vs_reference,
     },
     OpEntry {
         name: "pathtrace.speed_error",
         doc: "seconds and rmse (clamped [0,1] and raw) vs a ref_spp render (or params.reference .npy) per params.spp; plot_image",
         params: &["spp", "ref_spp", "ref_seed", "reference"],
-        support: Support::Cpu,
+        support: Support::CpuGpuF32,
         run: speed_error,
     },
 ];
 
-fn load(ctx: &OpCtx) -> Result<PathtraceScene> {
+pub(super) fn load(ctx: &OpCtx) -> Result<PathtraceScene> {
     crate::scene::pathtrace::parse(ctx.scene()?)
 }
 
 fn timed_render(s: &PathtraceScene, p: &RenderParams, ctx: &OpCtx) -> Result<(Image, f64)> {
+    if ctx.backend == BackendKind::Gpu {
+        return super::pathtrace_gpu::timed_render_gpu(s, p, ctx);
+    }
     let cam = s.camera.to_real::<f32>(p.width, p.height);
     let t = Instant::now();
     let img = render(&s.scene, &cam, p, &ctx.budget)?;

@@ -1,0 +1,440 @@
+//! Eight rays at a time against every shape (SIMD across rays): the
+//! shapes as structures of arrays, each shape broadcast to the eight lanes
+//! of a ray packet. AVX2 (`std::arch`, chosen at run time with
+//! `is_x86_feature_detected!`, never `-C target-cpu=native`) or a portable
+//! lane loop elsewhere. Both run the same IEEE operations in the same order
+//! as the per-ray [`super::packed::Packed`] test (the scalar path's
+//! intersection), lane by lane, so a packet render equals the scalar one
+//! bit for bit; tests below and the case `pt_packet_equals_scalar` hold
+//! them equal. Shapes are visited spheres first, then quads, in scene order
+//! (as `Packed` visits them), so ties resolve to the same shape.
+
+use super::shapes::Shape;
+
+/// Rays per packet.
+pub const LANES: usize = 8;
+
+/// Eight rays, coordinates by lane.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct Rays8 {
+    pub o: [[f32; LANES]; 3],
+    pub d: [[f32; LANES]; 3],
+}
+
+/// Spheres and quads, one array per coordinate.
+#[derive(Clone, Debug, Default)]
+pub struct Soa8 {
+    sc: [Vec<f32>; 3],
+    sr2: Vec<f32>,
+    sid: Vec<u32>,
+    qc: [Vec<f32>; 3],
+    qn: [Vec<f32>; 3],
+    qua: [Vec<f32>; 3],
+    qvb: [Vec<f32>; 3],
+    qid: Vec<u32>,
+    avx2: bool,
+}
+
+/// Which instruction set runs the packet tests on this machine.
+pub fn isa() -> &'static str {
+    if has_avx2() {
+        "avx2"
+    } else {
+        "portable"
+    }
+}
+
+fn has_avx2() -> bool {
+    #[cfg(target_arch = "x86_64")]
+    {
+        std::arch::is_x86_feature_detected!("avx2")
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    {
+        false
+    }
+}
+
+/// Lane `k` of `mask` is set.
+#[inline]
+pub fn lane(mask: u8, k: usize) -> bool {
+    mask & (1 << k) != 0
+}
+
+impl Soa8 {
+    /// The shapes in SoA form; `portable` forces the lane loop (tests).
+    pub fn new(shapes: &[Shape], portable: bool) -> Soa8 {
+        let mut s = Soa8 {
+            avx2: !portable && has_avx2(),
+            ..Soa8::default()
+        };
+        for (i, sh) in shapes.iter().enumerate() {
+            if let Shape::Sphere(sp) = sh {
+                for k in 0..3 {
+                    s.sc[k].push(sp.centre[k]);
+                }
+                s.sr2.push(sp.radius * sp.radius);
+                s.sid.push(i as u32);
+            }
+        }
+        for (i, sh) in shapes.iter().enumerate() {
+            if let Shape::Quad(q) = sh {
+                let (ua, vb) = q.dual();
+                for k in 0..3 {
+                    s.qc[k].push(q.corner[k]);
+                    s.qn[k].push(q.normal()[k]);
+                    s.qua[k].push(ua[k]);
+                    s.qvb[k].push(vb[k]);
+                }
+                s.qid.push(i as u32);
+            }
+        }
+        s
+    }
+
+    /// Nearest hit of each active lane (`active` bit k = lane k) in
+    /// (0, inf): `(t, shape index)`, index `u32::MAX` on a miss.
+    pub fn intersect8(&self, r: &Rays8, active: u8) -> ([f32; LANES], [u32; LANES]) {
+        let mut t = [f32::INFINITY; LANES];
+        let mut id = [u32::MAX; LANES];
+        self.trace(r, active, &mut t, &mut id, false);
+        (t, id)
+    }
+
+    /// Lanes of `active` whose ray meets a shape in (0, tmax).
+    pub fn occluded8(&self, r: &Rays8, tmax: &[f32; LANES], active: u8) -> u8 {
+        let mut t = *tmax;
+        let mut id = [u32::MAX; LANES];
+        self.trace(r, active, &mut t, &mut id, true)
+    }
+
+    /// Returns the lanes that found a hit; with `any`, stops once every
+    /// active lane has one.
+    fn trace(
+        &self,
+        r: &Rays8,
+        active: u8,
+        t: &mut [f32; LANES],
+        id: &mut [u32; LANES],
+        any: bool,
+    ) -> u8 {
+        #[cfg(target_arch = "x86_64")]
+        if self.avx2 {
+            // SAFETY: AVX2 was detected at run time (`Soa8::new`).
+            return unsafe { avx2::trace(self, r, active, t, id, any) };
+        }
+        self.trace_portable(r, active, t, id, any)
+    }
+
+    fn trace_portable(
+        &self,
+        r: &Rays8,
+        active: u8,
+        tb: &mut [f32; LANES],
+        id: &mut [u32; LANES],
+        any: bool,
+    ) -> u8 {
+        let mut hit = 0u8;
+        for s in 0..self.sid.len() {
+            for k in (0..LANES).filter(|&k| lane(active, k)) {
+                let (o, d) = (
+                    [r.o[0][k], r.o[1][k], r.o[2][k]],
+                    [r.d[0][k], r.d[1][k], r.d[2][k]],
+                );
+                let c = [self.sc[0][s], self.sc[1][s], self.sc[2][s]];
+                if let Some(t) = sphere_lane(c, self.sr2[s], o, d, tb[k]) {
+                    tb[k] = t;
+                    id[k] = self.sid[s];
+                    hit |= 1 << k;
+                }
+            }
+            if any && hit == active {
+                return hit;
+            }
+        }
+        for q in 0..self.qid.len() {
+            let g = |v: &[Vec<f32>; 3]| [v[0][q], v[1][q], v[2][q]];
+            let (c, n, ua, vb) = (g(&self.qc), g(&self.qn), g(&self.qua), g(&self.qvb));
+            for k in (0..LANES).filter(|&k| lane(active, k)) {
+                let (o, d) = (
+                    [r.o[0][k], r.o[1][k], r.o[2][k]],
+                    [r.d[0][k], r.d[1][k], r.d[2][k]],
+                );
+                if let Some(t) = quad_lane(c, n, ua, vb, o, d, tb[k]) {
+                    tb[k] = t;
+                    id[k] = self.qid[q];
+                    hit |= 1 << k;
+                }
+            }
+            if any && hit == active {
+                return hit;
+            }
+        }
+        hit
+    }
+}
+
+/// `a < b ? a : b` (SSE/AVX `min`: the second operand when either is NaN).
+#[inline]
+fn vmin(a: f32, b: f32) -> f32 {
+    if a < b {
+        a
+    } else {
+        b
+    }
+}
+
+/// `a > b ? a : b` (SSE/AVX `max`).
+#[inline]
+fn vmax(a: f32, b: f32) -> f32 {
+    if a > b {
+        a
+    } else {
+        b
+    }
+}
+
+/// One lane of `Packed`'s sphere test (stable quadratic, see
+/// `shapes::sphere_t`), the same operations in the same order.
+#[inline]
+fn sphere_lane(c: [f32; 3], r2: f32, o: [f32; 3], d: [f32; 3], tbest: f32) -> Option<f32> {
+    let (fx, fy, fz) = (o[0] - c[0], o[1] - c[1], o[2] - c[2]);
+    let b = -(fx * d[0] + fy * d[1] + fz * d[2]);
+    let cc = fx * fx + fy * fy + fz * fz - r2;
+    let (lx, ly, lz) = (fx + b * d[0], fy + b * d[1], fz + b * d[2]);
+    let disc = r2 - (lx * lx + ly * ly + lz * lz);
+    let root = vmax(disc, 0.0).sqrt();
+    let q = b + if b < 0.0 { -root } else { root };
+    let (t0, t1) = (cc / q, q);
+    let (lo, hi) = (vmin(t0, t1), vmax(t0, t1));
+    let t = if lo > 0.0 { lo } else { hi };
+    let ok = disc >= 0.0 && !(cc > 0.0 && b < 0.0) && t > 0.0 && t < tbest && q != 0.0;
+    ok.then_some(t)
+}
+
+/// One lane of `Packed`'s quad test (general-plane form).
+#[inline]
+fn quad_lane(
+    c: [f32; 3],
+    n: [f32; 3],
+    ua: [f32; 3],
+    vb: [f32; 3],
+    o: [f32; 3],
+    d: [f32; 3],
+    tbest: f32,
+) -> Option<f32> {
+    let dn = d[0] * n[0] + d[1] * n[1] + d[2] * n[2];
+    let num = (c[0] - o[0]) * n[0] + (c[1] - o[1]) * n[1] + (c[2] - o[2]) * n[2];
+    let t = num / dn;
+    let (hx, hy, hz) = (
+        o[0] + t * d[0] - c[0],
+        o[1] + t * d[1] - c[1],
+        o[2] + t * d[2] - c[2],
+    );
+    let a = hx * ua[0] + hy * ua[1] + hz * ua[2];
+    let b = hx * vb[0] + hy * vb[1] + hz * vb[2];
+    let ok = t > 0.0 && t < tbest && (0.0..=1.0).contains(&a) && (0.0..=1.0).contains(&b);
+    ok.then_some(t)
+}
+
+#[cfg(target_arch = "x86_64")]
+mod avx2 {
+    use std::arch::x86_64::*;
+
+    use super::{Rays8, Soa8, LANES};
+
+    /// The portable loop's operations on 8 lanes at once.
+    ///
+    /// # Safety
+    /// The CPU must have AVX2 (checked by the caller).
+    #[target_feature(enable = "avx2")]
+    pub unsafe fn trace(
+        s: &Soa8,
+        r: &Rays8,
+        active: u8,
+        tb: &mut [f32; LANES],
+        id: &mut [u32; LANES],
+        any: bool,
+    ) -> u8 {
+        let ld = |a: &[f32; LANES]| _mm256_loadu_ps(a.as_ptr());
+        let (ox, oy, oz) = (ld(&r.o[0]), ld(&r.o[1]), ld(&r.o[2]));
+        let (dx, dy, dz) = (ld(&r.d[0]), ld(&r.d[1]), ld(&r.d[2]));
+        let mut tbest = ld(tb);
+        let mut ids = _mm256_loadu_si256(id.as_ptr() as *const __m256i);
+        let zero = _mm256_setzero_ps();
+        let one = _mm256_set1_ps(1.0);
+        let sign = _mm256_set1_ps(-0.0);
+        let act = active as i32;
+        // All-ones in the active lanes.
+        let bits = _mm256_setr_epi32(1, 2, 4, 8, 16, 32, 64, 128);
+        let actv = _mm256_castsi256_ps(_mm256_cmpgt_epi32(
+            _mm256_and_si256(_mm256_set1_epi32(act), bits),
+            _mm256_setzero_si256(),
+        ));
+        let mut hit = 0i32;
+        let add = |a, b| _mm256_add_ps(a, b);
+        let sub = |a, b| _mm256_sub_ps(a, b);
+        let mul = |a, b| _mm256_mul_ps(a, b);
+        let take = |ok: __m256, t: __m256, shape: u32, tbest: &mut __m256, ids: &mut __m256i| {
+            let ok = _mm256_and_ps(ok, actv);
+            let m = _mm256_movemask_ps(ok);
+            if m != 0 {
+                *tbest = _mm256_blendv_ps(*tbest, t, ok);
+                *ids = _mm256_blendv_epi8(
+                    *ids,
+                    _mm256_set1_epi32(shape as i32),
+                    _mm256_castps_si256(ok),
+                );
+            }
+            m
+        };
+        for k in 0..s.sid.len() {
+            let (cx, cy, cz) = (
+                _mm256_set1_ps(s.sc[0][k]),
+                _mm256_set1_ps(s.sc[1][k]),
+                _mm256_set1_ps(s.sc[2][k]),
+            );
+            let r2 = _mm256_set1_ps(s.sr2[k]);
+            let (fx, fy, fz) = (sub(ox, cx), sub(oy, cy), sub(oz, cz));
+            let b = _mm256_xor_ps(add(add(mul(fx, dx), mul(fy, dy)), mul(fz, dz)), sign);
+            let c = sub(add(add(mul(fx, fx), mul(fy, fy)), mul(fz, fz)), r2);
+            let (lx, ly, lz) = (
+                add(fx, mul(b, dx)),
+                add(fy, mul(b, dy)),
+                add(fz, mul(b, dz)),
+            );
+            let disc = sub(r2, add(add(mul(lx, lx), mul(ly, ly)), mul(lz, lz)));
+            let root = _mm256_sqrt_ps(_mm256_max_ps(disc, zero));
+            let neg = _mm256_cmp_ps::<_CMP_LT_OQ>(b, zero);
+            let q = add(b, _mm256_blendv_ps(root, _mm256_xor_ps(root, sign), neg));
+            let (t0, t1) = (_mm256_div_ps(c, q), q);
+            let (lo, hi) = (_mm256_min_ps(t0, t1), _mm256_max_ps(t0, t1));
+            let t = _mm256_blendv_ps(hi, lo, _mm256_cmp_ps::<_CMP_GT_OQ>(lo, zero));
+            let behind = _mm256_and_ps(_mm256_cmp_ps::<_CMP_GT_OQ>(c, zero), neg);
+            let ok = _mm256_andnot_ps(
+                behind,
+                _mm256_and_ps(
+                    _mm256_and_ps(
+                        _mm256_cmp_ps::<_CMP_GE_OQ>(disc, zero),
+                        _mm256_cmp_ps::<_CMP_GT_OQ>(t, zero),
+                    ),
+                    _mm256_and_ps(
+                        _mm256_cmp_ps::<_CMP_LT_OQ>(t, tbest),
+                        _mm256_cmp_ps::<_CMP_NEQ_UQ>(q, zero),
+                    ),
+                ),
+            );
+            hit |= take(ok, t, s.sid[k], &mut tbest, &mut ids);
+            if any && hit == act {
+                break;
+            }
+        }
+        if !(any && hit == act) {
+            for k in 0..s.qid.len() {
+                let g = |v: &[Vec<f32>; 3]| {
+                    (
+                        _mm256_set1_ps(v[0][k]),
+                        _mm256_set1_ps(v[1][k]),
+                        _mm256_set1_ps(v[2][k]),
+                    )
+                };
+                let ((cx, cy, cz), (nx, ny, nz)) = (g(&s.qc), g(&s.qn));
+                let ((ax, ay, az), (bx, by, bz)) = (g(&s.qua), g(&s.qvb));
+                let dn = add(add(mul(dx, nx), mul(dy, ny)), mul(dz, nz));
+                let num = add(
+                    add(mul(sub(cx, ox), nx), mul(sub(cy, oy), ny)),
+                    mul(sub(cz, oz), nz),
+                );
+                let t = _mm256_div_ps(num, dn);
+                let hx = sub(add(ox, mul(t, dx)), cx);
+                let hy = sub(add(oy, mul(t, dy)), cy);
+                let hz = sub(add(oz, mul(t, dz)), cz);
+                let a = add(add(mul(hx, ax), mul(hy, ay)), mul(hz, az));
+                let bb = add(add(mul(hx, bx), mul(hy, by)), mul(hz, bz));
+                let ok = _mm256_and_ps(
+                    _mm256_and_ps(
+                        _mm256_and_ps(
+                            _mm256_cmp_ps::<_CMP_GT_OQ>(t, zero),
+                            _mm256_cmp_ps::<_CMP_LT_OQ>(t, tbest),
+                        ),
+                        _mm256_and_ps(
+                            _mm256_cmp_ps::<_CMP_GE_OQ>(a, zero),
+                            _mm256_cmp_ps::<_CMP_LE_OQ>(a, one),
+                        ),
+                    ),
+                    _mm256_and_ps(
+                        _mm256_cmp_ps::<_CMP_GE_OQ>(bb, zero),
+                        _mm256_cmp_ps::<_CMP_LE_OQ>(bb, one),
+                    ),
+                );
+                hit |= take(ok, t, s.qid[k], &mut tbest, &mut ids);
+                if any && hit == act {
+                    break;
+                }
+            }
+        }
+        _mm256_storeu_ps(tb.as_mut_ptr(), tbest);
+        _mm256_storeu_si256(id.as_mut_ptr() as *mut __m256i, ids);
+        hit as u8
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::pathtrace::packed::Packed;
+    use crate::rng::rand_f32;
+    use glam::Vec3A;
+
+    /// Both packet implementations equal the per-ray `Packed` test bit for
+    /// bit (t and shape), for nearest hits and shadow tests, with lanes off.
+    #[test]
+    #[allow(clippy::needless_range_loop)]
+    fn packets_equal_the_per_ray_test_bit_for_bit() {
+        let shapes = crate::pathtrace::packed::cornell_shapes();
+        let p = Packed::new(&shapes);
+        for portable in [false, true] {
+            let s = Soa8::new(&shapes, portable);
+            let mut hits = 0;
+            for i in 0..20_000u32 {
+                let mut r = Rays8::default();
+                let mut tmax = [0.0f32; LANES];
+                for k in 0..LANES {
+                    let u = |j| rand_f32(5, i, k as u32, j) * 2.0 - 1.0;
+                    let o = Vec3A::new(u(0), u(1), u(2) * 0.5 + 2.0 * (k % 2) as f32);
+                    let d = Vec3A::new(u(3), u(4), u(5)).normalize();
+                    for a in 0..3 {
+                        r.o[a][k] = o[a];
+                        r.d[a][k] = d[a];
+                    }
+                    tmax[k] = u(6) + 1.0;
+                }
+                let active = (rand_f32(6, i, 0, 0) * 255.0) as u8 | 1;
+                let (t, id) = s.intersect8(&r, active);
+                let occ = s.occluded8(&r, &tmax, active);
+                for k in 0..LANES {
+                    let o = Vec3A::new(r.o[0][k], r.o[1][k], r.o[2][k]);
+                    let d = Vec3A::new(r.d[0][k], r.d[1][k], r.d[2][k]);
+                    if !lane(active, k) {
+                        assert_eq!(id[k], u32::MAX);
+                        assert!(!lane(occ, k));
+                        continue;
+                    }
+                    match p.intersect(o, d, f32::INFINITY) {
+                        Some((tp, ip)) => {
+                            hits += 1;
+                            assert_eq!(
+                                (t[k].to_bits(), id[k]),
+                                (tp.to_bits(), ip as u32),
+                                "lane {k} ray {i}"
+                            );
+                        }
+                        None => assert_eq!(id[k], u32::MAX),
+                    }
+                    assert_eq!(lane(occ, k), p.occluded(o, d, tmax[k]), "lane {k} ray {i}");
+                }
+            }
+            assert!(hits > 40_000, "{hits}");
+        }
+    }
+}
