@@ -9,6 +9,7 @@ pub mod camera;
 pub mod error;
 pub mod gpu;
 pub mod judge;
+pub mod npy;
 pub mod parallel;
 pub mod pathtrace;
 pub mod rays;

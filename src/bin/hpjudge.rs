@@ -14,13 +14,15 @@ use hotpath::judge::artifacts::write_tensor;
 use hotpath::judge::env;
 use hotpath::judge::load::JudgeInputError;
 use hotpath::judge::ops::{self, BackendKind, OpCtx};
-use hotpath::judge::perf::{compare, read_metrics, Change, PerfReport, PerfScenarios};
-use hotpath::judge::runner::{
-    self, load_inputs, print_summary, BackendFilter, ChildEnd, RunOptions,
+use hotpath::judge::perf::{
+    compare, missing_or_errored, read_pair, validate_compare_args, Change, PerfReport,
+    PerfScenarios,
 };
-use hotpath::judge::scoreboard::{BackendResult, Verdict};
+use hotpath::judge::job::{run_child, ChildEnd, Job, Task, DEADLINE_GRACE_S};
+use hotpath::judge::runner::{self, load_inputs, print_summary, BackendFilter, RunOptions};
+use hotpath::judge::scoreboard::Verdict;
 use hotpath::judge::thresholds::Thresholds;
-use hotpath::judge::worker::{find_case, run_case, run_scenario, WorkerEnv};
+use hotpath::judge::worker;
 use hotpath::real::Precision;
 use hotpath::scene::SceneDoc;
 use hotpath::tensor::Tensor;
@@ -35,8 +37,8 @@ pub struct Cli {
 
 #[derive(clap::Args, Debug, Clone)]
 struct Common {
-    /// Rayon threads (0 = one per logical CPU).
-    #[arg(long, default_value_t = 0)]
+    /// Rayon threads (0 = one per logical CPU; at most 1024).
+    #[arg(long, default_value_t = 0, value_parser = runner::parse_threads)]
     threads: usize,
     /// Seed for every stochastic choice.
     #[arg(long, default_value_t = 0)]
@@ -160,33 +162,12 @@ enum Cmd {
         #[arg(long)]
         profile: Option<String>,
     },
-    /// (internal) Run one case or perf scenario; used by `run` and `perf`.
+    /// (internal) Run the job on stdin (one case or perf scenario, resolved
+    /// by `run`, `perf` or `bless`) and write its result.
     #[command(hide = true)]
     Worker {
         #[arg(long)]
-        manifest: Option<PathBuf>,
-        #[arg(long)]
-        case: Option<String>,
-        #[arg(long)]
-        scenarios: Option<PathBuf>,
-        #[arg(long)]
-        scenario: Option<String>,
-        #[arg(long, value_enum, default_value = "cpu")]
-        backend: BackendArg,
-        #[arg(long, default_value = "out")]
-        out: PathBuf,
-        #[arg(long)]
-        thresholds: PathBuf,
-        #[arg(long)]
-        profile: String,
-        #[arg(long)]
         result: PathBuf,
-        #[arg(long)]
-        dump: bool,
-        #[arg(long)]
-        bless: bool,
-        #[command(flatten)]
-        common: Common,
     },
 }
 
@@ -333,14 +314,15 @@ fn dispatch(cli: Cli) -> anyhow::Result<Outcome> {
                 profile,
                 thresholds,
                 mem_limit: common.mem_limit,
+                bless: false,
             };
             let board = runner::run(&opts)?;
             if json {
-                println!("{}", serde_json::to_string_pretty(&board)?);
+                runner::emit(&serde_json::to_string_pretty(&board)?);
             } else {
                 print_summary(&board, &opts.out);
             }
-            Ok(if board.summary.all_good() {
+            Ok(if board.all_good() {
                 Outcome::Ok
             } else {
                 Outcome::Failed
@@ -458,15 +440,29 @@ fn dispatch(cli: Cli) -> anyhow::Result<Outcome> {
             noise_k,
             json,
         } => {
-            let (b, n) = (read_metrics(&base)?, read_metrics(&new)?);
-            let rows = compare(&b, &n, threshold, noise_k);
+            validate_compare_args(threshold, noise_k)?;
+            let (b, n) = read_pair(&base, &new)?;
+            let rows = compare(&b.metrics, &n.metrics, threshold, noise_k);
+            let missing = missing_or_errored(&b, &n);
             let regressions = rows
                 .iter()
                 .filter(|r| r.verdict == Change::Regression)
-                .count();
+                .count()
+                + missing.len();
+            if rows.is_empty() && missing.is_empty() {
+                bail!(
+                    "no metric of {} is in {}: nothing was compared",
+                    base.display(),
+                    new.display()
+                );
+            }
             if json {
-                println!("{}", serde_json::to_string_pretty(&rows)?);
+                let v = serde_json::json!({"metrics": rows, "missing_or_errored": missing});
+                println!("{}", serde_json::to_string_pretty(&v)?);
             } else {
+                for m in &missing {
+                    println!("{:<52} Regression: {}", m.id, m.why);
+                }
                 println!(
                     "{:<52} {:>12} {:>12} {:>8} {:>7}  verdict",
                     "metric", "base", "new", "change", "noise"
@@ -495,55 +491,8 @@ fn dispatch(cli: Cli) -> anyhow::Result<Outcome> {
             filter,
             profile,
         } => bless(&manifest, filter.as_deref(), profile.as_deref()),
-        Cmd::Worker {
-            manifest,
-            case,
-            scenarios,
-            scenario,
-            backend,
-            out,
-            thresholds,
-            profile,
-            result,
-            dump,
-            bless,
-            common,
-        } => {
-            init_threads(common.threads);
-            let th = Thresholds::load(&thresholds, &profile)?;
-            let root = thresholds.parent().unwrap_or(Path::new(".")).to_path_buf();
-            let perf_path = root.join("perf_scenarios.yaml");
-            let perf = match &scenarios {
-                Some(p) => PerfScenarios::load(p)?,
-                None if perf_path.is_file() => PerfScenarios::load(&perf_path)?,
-                None => PerfScenarios::default(),
-            };
-            let goldens = root.join("GOLDENS");
-            let wenv = WorkerEnv {
-                thresholds: &th,
-                perf: &perf,
-                out: &out,
-                goldens: &goldens,
-                seed: common.seed,
-                budget: budget(&common),
-                dump,
-                bless,
-            };
-            let text = match (manifest, case, scenario) {
-                (Some(m), Some(c), None) => {
-                    let lc = find_case(&m, &c).map_err(anyhow::Error::msg)?;
-                    serde_json::to_string(&run_case(&lc, backend.into(), &wenv))?
-                }
-                (None, None, Some(s)) => {
-                    let sc = perf
-                        .find(&s)
-                        .with_context(|| format!("no perf scenario {s:?}"))?;
-                    serde_json::to_string(&run_scenario(sc, &perf, &wenv))?
-                }
-                _ => bail!("worker needs --manifest and --case, or --scenario"),
-            };
-            std::fs::write(&result, text)
-                .with_context(|| format!("writing {}", result.display()))?;
+        Cmd::Worker { result } => {
+            worker::serve(&result).map_err(anyhow::Error::msg)?;
             Ok(Outcome::Ok)
         }
     }
@@ -566,7 +515,9 @@ fn render(
     let op = ops::find(&name).ok_or_else(|| {
         Error::NotSupported(format!("renderer {renderer:?} has no `render` operation"))
     })?;
-    let rays_t = rays.map(Tensor::read_npy).transpose()?;
+    let rays_t = rays
+        .map(|p| Tensor::read_npy_within(p, budget(common)))
+        .transpose()?;
     let mut params = serde_yaml::Mapping::new();
     if let Some(g) = grad_from {
         params.insert("grad_from".into(), g.display().to_string().into());
@@ -627,28 +578,25 @@ fn perf(
     {
         let dir = out.join("perf").join(&s.id);
         std::fs::create_dir_all(&dir)?;
-        let args: Vec<String> = vec![
-            "--scenarios".into(),
-            scenarios.display().to_string(),
-            "--scenario".into(),
-            s.id.clone(),
-            "--thresholds".into(),
-            th_path.display().to_string(),
-            "--profile".into(),
-            profile.clone(),
-            "--out".into(),
-            out.display().to_string(),
-            "--threads".into(),
-            common.threads.to_string(),
-            "--seed".into(),
-            common.seed.to_string(),
-        ];
         let limit = th
             .timeout("perf")
             .or_else(|| th.timeout("default"))
             .unwrap_or(600.0);
-        let r = match runner::run_child(
-            &args,
+        let job = Job {
+            task: Task::Scenario { id: s.id.clone() },
+            thresholds: th.clone(),
+            perf: perf.clone(),
+            out: out.to_path_buf(),
+            goldens: root.join("GOLDENS"),
+            seed: common.seed,
+            threads: common.threads,
+            mem_limit: common.mem_limit,
+            dump: false,
+            bless: false,
+            deadline_s: limit + DEADLINE_GRACE_S,
+        };
+        let r = match run_child(
+            &job,
             limit,
             &dir.join("worker.log"),
             &dir.join("result.json"),
@@ -726,36 +674,34 @@ fn bless(manifest: &Path, filter: Option<&str>, profile: Option<&str>) -> anyhow
     if std::env::var_os("CI").is_some() {
         bail!("bless refuses to run when CI is set: goldens change only on request, reviewed");
     }
-    let inputs = load_inputs(manifest, None, profile)?;
-    let goldens = inputs.root.join("GOLDENS");
-    let out = std::env::temp_dir().join(format!("hpjudge-bless-{}", std::process::id()));
+    // Each case runs in a worker, under the same limits as `run`.
+    let opts = RunOptions {
+        manifest: manifest.to_path_buf(),
+        out: std::env::temp_dir().join(format!("hpjudge-bless-{}", std::process::id())),
+        filter: filter.map(str::to_string),
+        backend: BackendFilter::Cpu,
+        threads: 0,
+        seed: 0,
+        json: true,
+        junit: None,
+        dump_failing: false,
+        require_gpu: false,
+        profile: profile.map(str::to_string),
+        thresholds: None,
+        mem_limit: None,
+        bless: true,
+    };
+    let board = runner::run(&opts)?;
     let mut wrote = 0;
-    for lc in inputs
-        .manifest
-        .cases
-        .iter()
-        .filter(|c| filter.is_none_or(|f| c.case.id.contains(f)))
-    {
-        if lc.case.asserts.iter().all(|a| a.goldens().is_empty()) {
-            continue;
-        }
-        let wenv = WorkerEnv {
-            thresholds: &inputs.thresholds,
-            perf: &inputs.perf,
-            out: &out,
-            goldens: &goldens,
-            seed: 0,
-            budget: MemBudget::from_machine(),
-            dump: false,
-            bless: true,
-        };
-        let r: BackendResult = run_case(lc, BackendKind::Cpu, &wenv);
-        if r.verdict == Verdict::Error {
-            bail!("{}: {}", lc.case.id, r.reason);
-        }
-        for a in &r.artifacts {
-            println!("blessed {a}");
-            wrote += 1;
+    for c in &board.cases {
+        for r in &c.results {
+            if r.verdict != Verdict::Pass {
+                bail!("{}: {} {}", c.id, r.verdict.name(), r.reason);
+            }
+            for a in &r.artifacts {
+                println!("blessed {a}");
+                wrote += 1;
+            }
         }
     }
     println!("{wrote} golden files written; review them with git diff before committing");

@@ -9,16 +9,20 @@
 //! | `asserts.rs` | the closed set of assertions and their checks |
 //! | `ops/` | the table of operations cases name |
 //! | `worker.rs` | one case on one backend, in a child process |
+//! | `job.rs` | what the judge hands a worker (stdin), the child process, its deadline |
+//! | `outlock.rs` | the exclusive lock on a run's output folder |
 //! | `runner.rs` | the run: workers, time limits, scoreboard, summary |
 //! | `scoreboard.rs`, `junit.rs`, `artifacts.rs` | what a run writes |
 
 pub mod artifacts;
 pub mod asserts;
 pub mod env;
+pub mod job;
 pub mod junit;
 pub mod load;
 pub mod manifest;
 pub mod ops;
+pub mod outlock;
 pub mod perf;
 pub mod runner;
 pub mod scoreboard;
