@@ -487,13 +487,11 @@ fn alive(pid: u32) -> bool {
         .unwrap_or(false)
 }
 
-const HANG: &str = "cases:\n  - id: hang\n    op: selftest.hang\n";
-
-#[test]
-fn a_second_run_into_the_same_out_folder_is_refused_naming_the_holder() {
-    let d = tmp("lock");
-    let m = manifest(&d, HANG);
-    let mut first = hpjudge()
+/// Starts `hpjudge run` on one hanging case into `<d>/out` and waits (up to
+/// 20 s) for its worker; returns the judge and the worker pids.
+fn start_hanging_run(d: &Path) -> (std::process::Child, Vec<u32>) {
+    let m = manifest(d, "cases:\n  - id: hang\n    op: selftest.hang\n");
+    let judge = hpjudge()
         .arg("run")
         .arg(&m)
         .arg("--out")
@@ -503,9 +501,18 @@ fn a_second_run_into_the_same_out_folder_is_refused_naming_the_holder() {
         .spawn()
         .unwrap();
     let t = std::time::Instant::now();
-    while children_of(first.id()).is_empty() && t.elapsed().as_secs() < 20 {
+    let mut workers = vec![];
+    while workers.is_empty() && t.elapsed().as_secs() < 20 {
         std::thread::sleep(std::time::Duration::from_millis(20));
+        workers = children_of(judge.id());
     }
+    (judge, workers)
+}
+
+#[test]
+fn a_second_run_into_the_same_out_folder_is_refused_naming_the_holder() {
+    let d = tmp("lock");
+    let (mut first, _) = start_hanging_run(&d);
     let o = hpjudge()
         .arg("run")
         .arg("TESTS/selftest/manifest.yaml")
@@ -526,22 +533,7 @@ fn a_second_run_into_the_same_out_folder_is_refused_naming_the_holder() {
 #[test]
 fn killing_the_judge_with_sigkill_kills_its_worker() {
     let d = tmp("kill9");
-    let m = manifest(&d, HANG);
-    let mut judge = hpjudge()
-        .arg("run")
-        .arg(&m)
-        .arg("--out")
-        .arg(d.join("out"))
-        .stdout(std::process::Stdio::null())
-        .stderr(std::process::Stdio::null())
-        .spawn()
-        .unwrap();
-    let t = std::time::Instant::now();
-    let mut workers = vec![];
-    while workers.is_empty() && t.elapsed().as_secs() < 20 {
-        std::thread::sleep(std::time::Duration::from_millis(20));
-        workers = children_of(judge.id());
-    }
+    let (mut judge, workers) = start_hanging_run(&d);
     assert_eq!(workers.len(), 1, "no worker started");
     judge.kill().unwrap();
     judge.wait().unwrap();
@@ -560,7 +552,7 @@ fn killing_the_judge_with_sigkill_kills_its_worker() {
 fn a_worker_ends_itself_at_its_own_deadline() {
     use hotpath::judge::job::{Job, Task};
     let d = tmp("deadline");
-    let m = manifest(&d, HANG);
+    let m = manifest(&d, "cases:\n  - id: hang\n    op: selftest.hang\n");
     let man = hotpath::judge::manifest::Manifest::load(&m).unwrap();
     let th =
         hotpath::judge::thresholds::Thresholds::load(&d.join("thresholds.yaml"), "default").unwrap();

@@ -17,6 +17,8 @@
 pub mod artifacts;
 pub mod asserts;
 pub mod env;
+#[cfg(test)]
+mod fuzz_tests;
 pub mod job;
 pub mod junit;
 pub mod load;
