@@ -97,7 +97,9 @@ pub fn parse_header(bytes: &[u8], what: &str) -> Result<Header> {
         .ok_or_else(|| bad(format!("header claims {len} bytes; the file is shorter")))?;
     let text = std::str::from_utf8(text).map_err(|_| bad("header is not UTF-8".into()))?;
     let dict = parse_dict(text).map_err(bad)?;
-    let descr = dict.descr.ok_or_else(|| bad("header has no 'descr'".into()))?;
+    let descr = dict
+        .descr
+        .ok_or_else(|| bad("header has no 'descr'".into()))?;
     let dtype = Dtype::from_descr(&descr).ok_or_else(|| {
         Error::invalid(
             what,
@@ -112,7 +114,9 @@ pub fn parse_header(bytes: &[u8], what: &str) -> Result<Header> {
             "unsupported .npy layout: fortran_order must be False (C order)",
         ));
     }
-    let shape = dict.shape.ok_or_else(|| bad("header has no 'shape'".into()))?;
+    let shape = dict
+        .shape
+        .ok_or_else(|| bad("header has no 'shape'".into()))?;
     let count = shape
         .iter()
         .try_fold(1u64, |acc, &d| acc.checked_mul(d as u64));
@@ -247,7 +251,10 @@ pub fn read(path: &Path, budget: MemBudget, check: impl Fn(&Header) -> Result<()
             ),
         ));
     }
-    budget.check(&format!("{at} ({:?} {})", h.shape, h.dtype.name()), Some(h.data_bytes))?;
+    budget.check(
+        &format!("{at} ({:?} {})", h.shape, h.dtype.name()),
+        Some(h.data_bytes),
+    )?;
     let mut data = head.split_off((h.data_offset as usize).min(head.len()));
     data.reserve_exact((h.data_bytes as usize).saturating_sub(data.len()));
     f.read_to_end(&mut data).map_err(|e| Error::io(path, e))?;
@@ -263,7 +270,7 @@ mod tests {
 
     fn file(header: &str, data: usize) -> Vec<u8> {
         let mut h = header.to_string();
-        while (10 + h.len() + 1) % 64 != 0 {
+        while !(10 + h.len() + 1).is_multiple_of(64) {
             h.push(' ');
         }
         h.push('\n');
@@ -277,9 +284,15 @@ mod tests {
 
     #[test]
     fn numpy_headers_parse_in_any_key_order() {
-        let b = file("{'descr': '<f4', 'fortran_order': False, 'shape': (2, 3), }", 24);
+        let b = file(
+            "{'descr': '<f4', 'fortran_order': False, 'shape': (2, 3), }",
+            24,
+        );
         let h = parse_header(&b, "x").unwrap();
-        assert_eq!((h.dtype, h.shape.clone(), h.data_bytes), (Dtype::F32, vec![2, 3], 24));
+        assert_eq!(
+            (h.dtype, h.shape.clone(), h.data_bytes),
+            (Dtype::F32, vec![2, 3], 24)
+        );
         let b = file("{'shape': (5,), 'fortran_order': False, 'descr': '|u1'}", 5);
         assert_eq!(parse_header(&b, "x").unwrap().shape, vec![5]);
         let b = file("{'descr': '<f8', 'fortran_order': False, 'shape': ()}", 8);
@@ -293,28 +306,53 @@ mod tests {
         let p = dir.join("huge.npy");
         std::fs::write(
             &p,
-            file("{'descr': '<f4', 'fortran_order': False, 'shape': (3000, 3000, 3000), }", 64),
+            file(
+                "{'descr': '<f4', 'fortran_order': False, 'shape': (3000, 3000, 3000), }",
+                64,
+            ),
         )
         .unwrap();
         let e = read(&p, MemBudget::fixed(1 << 40), |_| Ok(()))
             .err()
             .unwrap()
             .to_string();
-        assert!(e.contains("108000000000 bytes") && e.contains("holds 64"), "{e}");
-        let e = read(&p, MemBudget::fixed(1 << 20), |_| Ok(())).err().unwrap();
+        assert!(
+            e.contains("108000000000 bytes") && e.contains("holds 64"),
+            "{e}"
+        );
+        let e = read(&p, MemBudget::fixed(1 << 20), |_| Ok(()))
+            .err()
+            .unwrap();
         assert!(e.to_string().contains("holds 64"), "{e}");
-        let e = read(&dir, MemBudget::fixed(1 << 20), |_| Ok(())).err().unwrap();
+        let e = read(&dir, MemBudget::fixed(1 << 20), |_| Ok(()))
+            .err()
+            .unwrap();
         assert!(e.to_string().contains("is a directory"), "{e}");
     }
 
     #[test]
     fn overflowing_big_endian_and_fortran_headers_are_refused() {
         for (hdr, want) in [
-            ("{'descr': '<f4', 'fortran_order': False, 'shape': (18446744073709551615, 2), }", "overflows"),
-            ("{'descr': '>f4', 'fortran_order': False, 'shape': (2,), }", "unsupported .npy dtype"),
-            ("{'descr': '<f4', 'fortran_order': True, 'shape': (2,), }", "fortran_order"),
-            ("{'descr': '<f4', 'fortran_order': False, 'shape': (-2,), }", "non-negative"),
-            ("{'descr': '<f4', 'fortran_order': False, 'shape': (2,) ", "dict"),
+            (
+                "{'descr': '<f4', 'fortran_order': False, 'shape': (18446744073709551615, 2), }",
+                "overflows",
+            ),
+            (
+                "{'descr': '>f4', 'fortran_order': False, 'shape': (2,), }",
+                "unsupported .npy dtype",
+            ),
+            (
+                "{'descr': '<f4', 'fortran_order': True, 'shape': (2,), }",
+                "fortran_order",
+            ),
+            (
+                "{'descr': '<f4', 'fortran_order': False, 'shape': (-2,), }",
+                "non-negative",
+            ),
+            (
+                "{'descr': '<f4', 'fortran_order': False, 'shape': (2,) ",
+                "dict",
+            ),
         ] {
             let e = parse_header(&file(hdr, 0), "x").unwrap_err().to_string();
             assert!(e.contains(want), "{hdr}: {e}");
@@ -326,8 +364,14 @@ mod tests {
         let dir = std::env::temp_dir().join(format!("hp-npy-b-{}", std::process::id()));
         std::fs::create_dir_all(&dir).unwrap();
         let p = dir.join("big.npy");
-        std::fs::write(&p, file("{'descr': '<f8', 'fortran_order': False, 'shape': (1000,), }", 8000))
-            .unwrap();
+        std::fs::write(
+            &p,
+            file(
+                "{'descr': '<f8', 'fortran_order': False, 'shape': (1000,), }",
+                8000,
+            ),
+        )
+        .unwrap();
         assert!(read(&p, MemBudget::fixed(8000), |_| Ok(())).is_ok());
         let e = read(&p, MemBudget::fixed(7999), |_| Ok(())).err().unwrap();
         assert!(matches!(e, Error::OutOfMemory { needed: 8000, .. }), "{e}");

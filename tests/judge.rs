@@ -288,7 +288,9 @@ fn dump_failing_writes_rays_that_render_replays() {
     let t = text(&o);
     assert_eq!(o.status.code(), Some(1), "{t}");
     assert!(
-        t.contains("hpjudge run") && t.contains("--filter=planted_fail") && t.contains("repro/planted_fail-cpu"),
+        t.contains("hpjudge run")
+            && t.contains("--filter=planted_fail")
+            && t.contains("repro/planted_fail-cpu"),
         "repro line missing: {t}"
     );
     let case = d.join("out/planted_fail/cpu");
@@ -365,8 +367,9 @@ fn version_names_the_git_revision() {
 
 /// A 192-byte `.npy` whose header claims (3000, 3000, 3000) float32.
 fn huge_header_npy(path: &Path) {
-    let mut h = "{'descr': '<f4', 'fortran_order': False, 'shape': (3000, 3000, 3000), }".to_string();
-    while (10 + h.len() + 1) % 64 != 0 {
+    let mut h =
+        "{'descr': '<f4', 'fortran_order': False, 'shape': (3000, 3000, 3000), }".to_string();
+    while !(10 + h.len() + 1).is_multiple_of(64) {
         h.push(' ');
     }
     h.push('\n');
@@ -418,7 +421,11 @@ fn a_npy_header_claiming_108_gb_is_refused_on_every_load_path() {
         .arg(d.join("r"))
         .output()
         .unwrap();
-    assert!(matches!(o.status.code(), Some(1 | 2)), "--grad-from: {}", text(&o));
+    assert!(
+        matches!(o.status.code(), Some(1 | 2)),
+        "--grad-from: {}",
+        text(&o)
+    );
     assert!(text(&o).contains("3000"), "--grad-from: {}", text(&o));
     std::fs::create_dir_all(d.join("GOLDENS")).unwrap();
     huge_header_npy(&d.join("GOLDENS/huge.npy"));
@@ -437,7 +444,10 @@ fn a_npy_header_claiming_108_gb_is_refused_on_every_load_path() {
     let b: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap_or_default();
     let r = &b["cases"][0]["results"][0];
     assert_eq!(r["verdict"], "ERROR", "golden: {}", text(&o));
-    assert!(r["reason"].as_str().unwrap_or("").contains(claim), "golden: {r}");
+    assert!(
+        r["reason"].as_str().unwrap_or("").contains(claim),
+        "golden: {r}"
+    );
 }
 
 /// Waits up to `secs` for a child; kills it and returns None past that.
@@ -543,7 +553,10 @@ fn killing_the_judge_with_sigkill_kills_its_worker() {
     }
     let survived = alive(workers[0]);
     if survived {
-        let _ = Command::new("kill").arg("-9").arg(workers[0].to_string()).status();
+        let _ = Command::new("kill")
+            .arg("-9")
+            .arg(workers[0].to_string())
+            .status();
     }
     assert!(!survived, "worker {} outlived the judge by 3 s", workers[0]);
 }
@@ -554,8 +567,8 @@ fn a_worker_ends_itself_at_its_own_deadline() {
     let d = tmp("deadline");
     let m = manifest(&d, "cases:\n  - id: hang\n    op: selftest.hang\n");
     let man = hotpath::judge::manifest::Manifest::load(&m).unwrap();
-    let th =
-        hotpath::judge::thresholds::Thresholds::load(&d.join("thresholds.yaml"), "default").unwrap();
+    let th = hotpath::judge::thresholds::Thresholds::load(&d.join("thresholds.yaml"), "default")
+        .unwrap();
     let job = Job {
         task: Task::Case {
             case: Box::new(man.cases[0].clone()),
@@ -617,14 +630,24 @@ fn a_closed_stdout_ends_the_run_quietly_with_an_incomplete_scoreboard() {
         serde_json::from_str(&std::fs::read_to_string(d.join("out/scoreboard.json")).unwrap())
             .unwrap();
     assert_eq!(b["complete"], false, "{b}");
-    assert!(b["cases_done"].as_u64().unwrap() < b["cases_total"].as_u64().unwrap(), "{b}");
+    assert!(
+        b["cases_done"].as_u64().unwrap() < b["cases_total"].as_u64().unwrap(),
+        "{b}"
+    );
 }
 
 #[test]
 fn a_complete_run_records_counts_and_input_hashes() {
     let d = tmp("hashes");
     let o = hpjudge()
-        .args(["run", "TESTS/rays/manifest.yaml", "--filter", "rays_clip", "--json", "--out"])
+        .args([
+            "run",
+            "TESTS/rays/manifest.yaml",
+            "--filter",
+            "rays_clip",
+            "--json",
+            "--out",
+        ])
         .arg(&d)
         .output()
         .unwrap();
@@ -633,7 +656,12 @@ fn a_complete_run_records_counts_and_input_hashes() {
     assert_eq!(b["cases_total"], 2);
     assert_eq!(b["cases_done"], 2);
     for k in ["manifest_tree_sha256", "thresholds_sha256", "scenes_sha256"] {
-        assert_eq!(b["inputs"][k].as_str().unwrap_or("").len(), 64, "{k}: {}", b["inputs"]);
+        assert_eq!(
+            b["inputs"][k].as_str().unwrap_or("").len(),
+            64,
+            "{k}: {}",
+            b["inputs"]
+        );
     }
 }
 
@@ -650,9 +678,17 @@ fn thresholds_with(dir: &Path, from: &str, to: &str) -> PathBuf {
 fn infinite_tolerances_and_nan_time_limits_are_refused_on_load() {
     let d = tmp("thvals");
     for (from, to, key) in [
-        ("  exact: {}", "  exact: {atol: .inf}", "tolerances.exact.atol"),
+        (
+            "  exact: {}",
+            "  exact: {atol: .inf}",
+            "tolerances.exact.atol",
+        ),
         ("  default: 120", "  default: .nan", "timeouts.default"),
-        ("  selftest_short: 3", "  selftest_short: -3", "timeouts.selftest_short"),
+        (
+            "  selftest_short: 3",
+            "  selftest_short: -3",
+            "timeouts.selftest_short",
+        ),
     ] {
         let th = thresholds_with(&d, from, to);
         let o = hpjudge()
@@ -668,7 +704,10 @@ fn infinite_tolerances_and_nan_time_limits_are_refused_on_load() {
 #[test]
 fn deeply_nested_yaml_is_refused_in_under_a_second() {
     let d = tmp("nest");
-    let m = manifest(&d, &("cases: ".to_string() + &"[".repeat(100_000) + &"]".repeat(100_000)));
+    let m = manifest(
+        &d,
+        &("cases: ".to_string() + &"[".repeat(100_000) + &"]".repeat(100_000)),
+    );
     let t = std::time::Instant::now();
     let o = hpjudge().arg("check").arg(&m).output().unwrap();
     assert!(t.elapsed().as_secs_f64() < 1.0, "{:?}", t.elapsed());
@@ -679,7 +718,13 @@ fn deeply_nested_yaml_is_refused_in_under_a_second() {
 #[test]
 fn absurd_thread_counts_are_refused() {
     let mut c = hpjudge()
-        .args(["run", "TESTS/selftest/manifest.yaml", "--threads", "100000", "--out"])
+        .args([
+            "run",
+            "TESTS/selftest/manifest.yaml",
+            "--threads",
+            "100000",
+            "--out",
+        ])
         .arg(tmp("threads"))
         .stdout(std::process::Stdio::piped())
         .stderr(std::process::Stdio::piped())
@@ -746,7 +791,10 @@ fn perf_gates_outside_a_perf_profile_are_a_skip_with_the_measured_value() {
     let b: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
     let r = &b["cases"][0]["results"][0];
     assert_eq!(r["verdict"], "SKIP", "{r}");
-    assert!(r["reason"].as_str().unwrap().contains("mrays_per_s = "), "{r}");
+    assert!(
+        r["reason"].as_str().unwrap().contains("mrays_per_s = "),
+        "{r}"
+    );
 }
 
 #[test]

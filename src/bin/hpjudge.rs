@@ -12,13 +12,13 @@ use hotpath::budget::{parse_size, MemBudget};
 use hotpath::error::Error;
 use hotpath::judge::artifacts::write_tensor;
 use hotpath::judge::env;
+use hotpath::judge::job::{run_child, ChildEnd, Job, Task, DEADLINE_GRACE_S};
 use hotpath::judge::load::JudgeInputError;
 use hotpath::judge::ops::{self, BackendKind, OpCtx};
 use hotpath::judge::perf::{
     compare, missing_or_errored, read_pair, validate_compare_args, Change, PerfReport,
     PerfScenarios,
 };
-use hotpath::judge::job::{run_child, ChildEnd, Job, Task, DEADLINE_GRACE_S};
 use hotpath::judge::runner::{self, load_inputs, print_summary, BackendFilter, RunOptions};
 use hotpath::judge::scoreboard::Verdict;
 use hotpath::judge::thresholds::Thresholds;

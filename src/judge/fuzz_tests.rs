@@ -83,9 +83,34 @@ impl Rng {
 }
 
 const TOKENS: &[&str] = &[
-    "[", "]", "{", "}", ":", "- ", "\n", "  ", "*a", "&a ", ".inf", "-.inf", ".nan", "-1", "0",
-    "1e308", "4294967295", "18446744073709551616", "~", "'", "\"", "\0", "#", "!!binary", ",", "..",
-    "/", "-",
+    "[",
+    "]",
+    "{",
+    "}",
+    ":",
+    "- ",
+    "\n",
+    "  ",
+    "*a",
+    "&a ",
+    ".inf",
+    "-.inf",
+    ".nan",
+    "-1",
+    "0",
+    "1e308",
+    "4294967295",
+    "18446744073709551616",
+    "~",
+    "'",
+    "\"",
+    "\0",
+    "#",
+    "!!binary",
+    ",",
+    "..",
+    "/",
+    "-",
 ];
 
 /// One byte-level mutation: flip, insert, delete, duplicate, truncate, token.
@@ -123,8 +148,25 @@ fn mutate_bytes(b: &mut Vec<u8>, r: &mut Rng) {
 
 fn interesting(r: &mut Rng) -> Value {
     let pick = [
-        "-1", "0", "1", "1e308", "-1e308", ".nan", ".inf", "4294967295", "18446744073709551615",
-        "\"\"", "[]", "{}", "[1, 2, 3]", "{a: 1}", "true", "~", "-x", "\"../../etc\"", "[[[[1]]]]",
+        "-1",
+        "0",
+        "1",
+        "1e308",
+        "-1e308",
+        ".nan",
+        ".inf",
+        "4294967295",
+        "18446744073709551615",
+        "\"\"",
+        "[]",
+        "{}",
+        "[1, 2, 3]",
+        "{a: 1}",
+        "true",
+        "~",
+        "-x",
+        "\"../../etc\"",
+        "[[[[1]]]]",
         "[100000, 100000, 100000]",
     ];
     serde_yaml::from_str(pick[r.below(pick.len())]).unwrap_or(Value::Null)
@@ -211,7 +253,9 @@ fn load(kind: Kind, path: &Path, th: &Thresholds) -> Result<(), String> {
         Kind::Thresholds => Thresholds::load(path, "ci")
             .map(drop)
             .map_err(|e| e.to_string()),
-        Kind::Perf => PerfScenarios::load(path).map(drop).map_err(|e| e.to_string()),
+        Kind::Perf => PerfScenarios::load(path)
+            .map(drop)
+            .map_err(|e| e.to_string()),
         Kind::Scene => {
             let doc = SceneDoc::load_values(path, &[]).map_err(|e| e.to_string())?;
             scene::validate(&doc).map_err(|e| e.to_string())
@@ -304,5 +348,9 @@ fn twenty_thousand_mutated_inputs_each_load_or_are_refused_within_a_second() {
         loaded + refused
     );
     assert!(loaded + refused >= INPUTS, "{loaded} + {refused}");
-    assert!(problems.is_empty(), "{}", problems[..problems.len().min(10)].join("\n"));
+    assert!(
+        problems.is_empty(),
+        "{}",
+        problems[..problems.len().min(10)].join("\n")
+    );
 }

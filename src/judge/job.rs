@@ -205,7 +205,10 @@ pub fn start_deadline(seconds: f64) {
     };
     std::thread::spawn(move || {
         std::thread::sleep(d);
-        eprintln!("hpjudge worker: past its own deadline of {:.1} s; ending", d.as_secs_f64());
+        eprintln!(
+            "hpjudge worker: past its own deadline of {:.1} s; ending",
+            d.as_secs_f64()
+        );
         std::process::exit(124);
     });
 }

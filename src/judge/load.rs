@@ -49,7 +49,11 @@ pub fn load_yaml_typed<T: DeserializeOwned>(path: &Path) -> Result<(T, String), 
     let meta = std::fs::metadata(path)
         .map_err(|e| JudgeInputError::new(&at, "", format!("cannot read: {e}")))?;
     if meta.is_dir() {
-        return Err(JudgeInputError::new(&at, "", "is a directory, not a YAML file"));
+        return Err(JudgeInputError::new(
+            &at,
+            "",
+            "is a directory, not a YAML file",
+        ));
     }
     if meta.len() > MAX_YAML_BYTES {
         return Err(JudgeInputError::new(

@@ -232,12 +232,10 @@ fn load_into(
     for (i, inc) in file.include.iter().enumerate() {
         let p = dir.join(inc);
         if !p.is_file() {
-            return Err(JudgeInputError::new(
-                &at,
-                &format!("include[{i}]"),
-                not_a_file(&p),
-            )
-            .at_line(find_line(&text, inc)));
+            return Err(
+                JudgeInputError::new(&at, &format!("include[{i}]"), not_a_file(&p))
+                    .at_line(find_line(&text, inc)),
+            );
         }
         load_into(&p, out, stack, tree)?;
     }

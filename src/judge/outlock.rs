@@ -28,12 +28,18 @@ pub fn lock_out_dir(out: &Path, what: &str) -> Result<OutLock, JudgeInputError> 
         .create(true)
         .truncate(false)
         .open(&path)
-        .map_err(|e| JudgeInputError::new(&at, "", format!("cannot open {}: {e}", path.display())))?;
+        .map_err(|e| {
+            JudgeInputError::new(&at, "", format!("cannot open {}: {e}", path.display()))
+        })?;
     if !try_lock(&f) {
         let mut holder = String::new();
         let _ = f.read_to_string(&mut holder);
         let holder = holder.trim();
-        let holder = if holder.is_empty() { "another hpjudge process" } else { holder };
+        let holder = if holder.is_empty() {
+            "another hpjudge process"
+        } else {
+            holder
+        };
         return Err(JudgeInputError::new(
             &at,
             "",
@@ -76,7 +82,10 @@ mod tests {
         std::fs::create_dir_all(&d).unwrap();
         let first = lock_out_dir(&d, "run a.yaml").unwrap();
         let e = lock_out_dir(&d, "run b.yaml").err().unwrap().to_string();
-        assert!(e.contains("in use by hpjudge pid") && e.contains("run a.yaml"), "{e}");
+        assert!(
+            e.contains("in use by hpjudge pid") && e.contains("run a.yaml"),
+            "{e}"
+        );
         drop(first);
         assert!(lock_out_dir(&d, "run b.yaml").is_ok());
     }

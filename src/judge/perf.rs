@@ -312,7 +312,11 @@ pub struct MissingRow {
 pub fn validate_compare_args(threshold: f64, noise_k: f64) -> Result<(), JudgeInputError> {
     for (k, v) in [("--threshold", threshold), ("--noise-k", noise_k)] {
         if !(v.is_finite() && v >= 0.0) {
-            return Err(JudgeInputError::new(k, "", format!("{v} is not a finite number >= 0")));
+            return Err(JudgeInputError::new(
+                k,
+                "",
+                format!("{v} is not a finite number >= 0"),
+            ));
         }
     }
     Ok(())
@@ -427,7 +431,8 @@ pub fn read_metrics(path: &Path) -> Result<MetricsFile, JudgeInputError> {
                     .flatten()
                 {
                     if let Some(x) = x.as_f64() {
-                        f.metrics.insert(format!("{key}/{m}"), MetricStats::of(vec![x]));
+                        f.metrics
+                            .insert(format!("{key}/{m}"), MetricStats::of(vec![x]));
                     }
                 }
             }
@@ -480,9 +485,15 @@ mod tests {
         assert_eq!(relative_change(0.0, 2.0), f64::INFINITY);
         let zero = BTreeMap::from([("s/time_s".to_string(), noisy(0.0, 0.0))]);
         let slow = BTreeMap::from([("s/time_s".to_string(), noisy(1.0, 0.0))]);
-        assert_eq!(compare(&zero, &slow, 0.1, 2.0)[0].verdict, Change::Regression);
+        assert_eq!(
+            compare(&zero, &slow, 0.1, 2.0)[0].verdict,
+            Change::Regression
+        );
         let nan = BTreeMap::from([("s/time_s".to_string(), MetricStats::of(vec![f64::NAN]))]);
-        assert_eq!(compare(&slow, &nan, 0.1, 2.0)[0].verdict, Change::Regression);
+        assert_eq!(
+            compare(&slow, &nan, 0.1, 2.0)[0].verdict,
+            Change::Regression
+        );
         assert_eq!(compare(&nan, &slow, 0.1, 2.0)[0].verdict, Change::NotJudged);
         assert!(validate_compare_args(f64::NAN, 2.0).is_err());
         assert!(validate_compare_args(0.1, -1.0).is_err());

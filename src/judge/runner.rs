@@ -3,8 +3,8 @@
 //! limit, and writes the scoreboard atomically after every case.
 
 use std::collections::{BTreeMap, BTreeSet};
-use std::io::Write;
 use std::io::IsTerminal;
+use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
@@ -12,17 +12,17 @@ use super::env;
 use super::job::{run_child, ChildEnd, Job, Task, DEADLINE_GRACE_S};
 use super::junit::to_junit;
 use super::load::JudgeInputError;
+use super::manifest::not_a_file;
 use super::manifest::{LoadedCase, Manifest};
 use super::ops::BackendKind;
+use super::outlock::lock_out_dir;
 use super::perf::PerfScenarios;
+use super::scoreboard::InputHashes;
 use super::scoreboard::{BackendResult, CaseEntry, Scoreboard, Summary, Verdict, SCHEMA_VERSION};
 use super::thresholds::{pick_profile, Thresholds, ThresholdsFile};
-use super::manifest::not_a_file;
-use super::outlock::lock_out_dir;
-use super::scoreboard::InputHashes;
 use super::worker::{case_dir, sets_for, PERF_NOT_ENFORCED};
-use sha2::{Digest, Sha256};
 use crate::scene::{self, SceneDoc};
+use sha2::{Digest, Sha256};
 
 /// Which backends a run covers.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
@@ -156,7 +156,8 @@ fn validate_scenes(
     hashes: &mut BTreeMap<PathBuf, String>,
 ) -> Result<(), JudgeInputError> {
     let c = &lc.case;
-    let mut runs: Vec<(String, Option<&String>, Option<&BTreeMap<String, serde_yaml::Value>>)> =
+    type Sets = BTreeMap<String, serde_yaml::Value>;
+    let mut runs: Vec<(String, Option<&String>, Option<&Sets>)> =
         vec![(format!("cases[{}]", c.id), c.scene.as_ref(), None)];
     for (name, r) in &c.refs {
         runs.push((
@@ -176,11 +177,12 @@ fn validate_scenes(
         let Some(s) = scene else { continue };
         let path = lc.dir().join(s);
         if !hashes.contains_key(&path) {
-            let bytes = std::fs::read(&path)
-                .map_err(|e| JudgeInputError::new(&lc.at(), &key, format!("{}: {e}", path.display())))?;
+            let bytes = std::fs::read(&path).map_err(|e| {
+                JudgeInputError::new(&lc.at(), &key, format!("{}: {e}", path.display()))
+            })?;
             hashes.insert(path.clone(), format!("{:x}", Sha256::digest(&bytes)));
         }
-        let profiles: &[Option<&BTreeMap<String, serde_yaml::Value>>] = if c.ci.is_empty() {
+        let profiles: &[Option<&Sets>] = if c.ci.is_empty() {
             &[None]
         } else {
             &[None, Some(&c.ci)]
@@ -228,8 +230,7 @@ pub fn show_progress(json: bool, ci_set: bool, stderr_is_terminal: bool) -> bool
 /// Quotes `s` for a POSIX shell when it holds anything but `[A-Za-z0-9_./=:,+-]`.
 pub fn shell_quote(s: &str) -> String {
     let plain = !s.is_empty()
-        && s
-            .chars()
+        && s.chars()
             .all(|c| c.is_ascii_alphanumeric() || "_./=:,+-".contains(c));
     if plain {
         s.to_string()
@@ -388,7 +389,11 @@ pub fn run(opts: &RunOptions) -> Result<Scoreboard, JudgeInputError> {
     let out = &opts.out;
     let out_at = out.display().to_string();
     if out.exists() && !out.is_dir() {
-        return Err(JudgeInputError::new(&out_at, "", "exists and is not a directory"));
+        return Err(JudgeInputError::new(
+            &out_at,
+            "",
+            "exists and is not a directory",
+        ));
     }
     std::fs::create_dir_all(out)
         .map_err(|e| JudgeInputError::new(&out_at, "", format!("cannot create: {e}")))?;
@@ -567,7 +572,10 @@ pub fn print_summary(board: &Scoreboard, out: &Path) {
         lines.push("\nrepro:".to_string());
         lines.extend(repros);
     }
-    lines.push(format!("\nscoreboard: {}", out.join("scoreboard.json").display()));
+    lines.push(format!(
+        "\nscoreboard: {}",
+        out.join("scoreboard.json").display()
+    ));
     if !board.complete {
         lines.push(format!(
             "INCOMPLETE: {} of {} results ({})",
@@ -620,7 +628,9 @@ mod tests {
     fn thread_counts_over_the_limit_are_refused() {
         assert_eq!(parse_threads("0"), Ok(0));
         assert_eq!(parse_threads("1024"), Ok(1024));
-        assert!(parse_threads("100000").unwrap_err().contains("over the limit"));
+        assert!(parse_threads("100000")
+            .unwrap_err()
+            .contains("over the limit"));
         assert!(parse_threads("-1").is_err());
     }
 

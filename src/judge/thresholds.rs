@@ -115,8 +115,9 @@ impl Thresholds {
                 format!("{} is not 1", file.schema_version),
             ));
         }
-        validate_values(&file)
-            .map_err(|(key, what)| JudgeInputError::new(&at, &key, what).at_line(line_of(&text, &key)))?;
+        validate_values(&file).map_err(|(key, what)| {
+            JudgeInputError::new(&at, &key, what).at_line(line_of(&text, &key))
+        })?;
         let p = file.profiles.get(profile).cloned().ok_or_else(|| {
             let known: Vec<&String> = file.profiles.keys().collect();
             JudgeInputError::new(
@@ -251,7 +252,11 @@ fn line_of(text: &str, key: &str) -> Option<usize> {
             .lines()
             .enumerate()
             .skip(from)
-            .find(|(_, l)| l.trim_start().starts_with(&pat) || l.contains(&format!(" {pat}")) || l.contains(&format!("{{{pat}")))
+            .find(|(_, l)| {
+                l.trim_start().starts_with(&pat)
+                    || l.contains(&format!(" {pat}"))
+                    || l.contains(&format!("{{{pat}"))
+            })
             .map(|(i, _)| i)?;
         from = i;
         line = Some(i + 1);
@@ -292,8 +297,14 @@ mod tests {
             ("tolerances: {t: {rtol: -1}}", "tolerances.t.rtol"),
             ("tolerances: {t: {floor: .nan}}", "tolerances.t.floor"),
             ("gates: {g: .nan}", "gates.g"),
-            ("profiles: {p: {timeout_scale: 0}}", "profiles.p.timeout_scale"),
-            ("profiles: {p: {tolerances: {t: {atol: .inf}}}}", "profiles.p.tolerances.t.atol"),
+            (
+                "profiles: {p: {timeout_scale: 0}}",
+                "profiles.p.timeout_scale",
+            ),
+            (
+                "profiles: {p: {tolerances: {t: {atol: .inf}}}}",
+                "profiles.p.tolerances.t.atol",
+            ),
         ] {
             let f = file(&format!("{base}{extra}\n"));
             assert_eq!(validate_values(&f).unwrap_err().0, key, "{extra}");
@@ -302,7 +313,9 @@ mod tests {
         assert_eq!(validate_values(&f).unwrap_err().0, "timeouts.default");
         let f = file("schema_version: 1\ntimeouts: {default: -3}\n");
         assert_eq!(validate_values(&f).unwrap_err().0, "timeouts.default");
-        let f = file(&format!("{base}tolerances: {{t: {{atol: 0.5}}}}\ngates: {{g: -2}}\n"));
+        let f = file(&format!(
+            "{base}tolerances: {{t: {{atol: 0.5}}}}\ngates: {{g: -2}}\n"
+        ));
         assert!(validate_values(&f).is_ok());
     }
 

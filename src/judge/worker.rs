@@ -297,7 +297,9 @@ pub fn run_case(lc: &LoadedCase, backend: BackendKind, env: &WorkerEnv) -> Backe
         .filter(|k| !k.enforced)
         .map(|k| k.message.clone())
         .collect();
-    if res.verdict == Verdict::Pass && !unenforced.is_empty() && unenforced.len() == res.checks.len()
+    if res.verdict == Verdict::Pass
+        && !unenforced.is_empty()
+        && unenforced.len() == res.checks.len()
     {
         res.verdict = Verdict::Skip;
         res.reason = format!(

@@ -87,7 +87,10 @@ mod tests {
     #[test]
     fn committed_yaml_files_nest_well_under_the_limit() {
         let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
-        let mut files = vec![root.join("thresholds.yaml"), root.join("perf_scenarios.yaml")];
+        let mut files = vec![
+            root.join("thresholds.yaml"),
+            root.join("perf_scenarios.yaml"),
+        ];
         for d in ["TESTS", "TESTS/scenes"] {
             for e in std::fs::read_dir(root.join(d)).unwrap().flatten() {
                 let p = e.path();
