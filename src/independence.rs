@@ -34,7 +34,11 @@ pub fn foreign_paths(src: &str, allowed: &[&str]) -> Vec<String> {
     }
     paths
         .into_iter()
-        .filter(|p| !allowed.iter().any(|a| p == a || p.starts_with(&format!("{a}::"))))
+        .filter(|p| {
+            !allowed
+                .iter()
+                .any(|a| p == a || p.starts_with(&format!("{a}::")))
+        })
         .collect()
 }
 
@@ -83,7 +87,10 @@ mod tests {
         let allowed = ["crate::stats", "crate::pathtrace::listed"];
         assert_eq!(
             foreign_paths(src, &allowed),
-            vec!["crate::pathtrace::shapes::intersect", "crate::pathtrace::packed::x"]
+            vec![
+                "crate::pathtrace::shapes::intersect",
+                "crate::pathtrace::packed::x"
+            ]
         );
     }
 

@@ -12,6 +12,7 @@ pub mod gpu;
 #[cfg(test)]
 mod independence;
 pub mod judge;
+pub mod npy;
 pub mod parallel;
 pub mod pathtrace;
 pub mod rays;

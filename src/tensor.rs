@@ -7,7 +7,9 @@ use std::path::Path;
 use ndarray::{ArrayD, IxDyn};
 use serde::{Deserialize, Serialize};
 
+use crate::budget::MemBudget;
 use crate::error::{Error, Result};
+use crate::npy::{self, Dtype};
 use crate::real::Real;
 
 /// An n-dimensional array of one of the dtypes outputs use (SCENES.md "Files":
@@ -145,70 +147,70 @@ impl Tensor {
         })
     }
 
-    /// Reads a `.npy` file of any supported dtype.
+    /// Reads a `.npy` file of any supported dtype, within the machine's
+    /// memory budget (see [`Tensor::read_npy_within`]).
     pub fn read_npy(path: &Path) -> Result<Tensor> {
-        if !path.is_file() {
-            return Err(Error::io(
-                path,
-                std::io::Error::new(std::io::ErrorKind::NotFound, "no such file"),
-            ));
+        Tensor::read_npy_within(path, MemBudget::from_machine())
+    }
+
+    /// Reads a `.npy` file: the header is parsed and its byte size checked
+    /// against the file length and `budget` before the data is allocated.
+    pub fn read_npy_within(path: &Path, budget: MemBudget) -> Result<Tensor> {
+        let raw = npy::read(path, budget, |_| Ok(()))?;
+        Tensor::from_raw(raw, path)
+    }
+
+    fn from_raw(raw: npy::Raw, path: &Path) -> Result<Tensor> {
+        fn words<const N: usize, T>(b: &[u8], f: fn([u8; N]) -> T) -> Vec<T> {
+            b.chunks_exact(N)
+                .map(|c| f(c.try_into().unwrap_or([0; N])))
+                .collect()
         }
-        macro_rules! attempt {
-            ($t:ty) => {
-                match ndarray_npy::read_npy::<_, ArrayD<$t>>(path) {
-                    Ok(a) => return Ok(a.into()),
-                    Err(ndarray_npy::ReadNpyError::WrongDescriptor(_)) => {}
-                    Err(e) => {
-                        return Err(Error::invalid(
-                            path.display().to_string(),
-                            format!("not a readable .npy file: {e}"),
-                        ))
-                    }
-                }
-            };
-        }
-        attempt!(f32);
-        attempt!(f64);
-        attempt!(i32);
-        attempt!(u32);
-        attempt!(u8);
-        Err(Error::invalid(
-            path.display().to_string(),
-            "unsupported .npy dtype (expected little-endian float32, float64, int32, uint32 or uint8, C order)",
-        ))
+        let s = raw.header.shape.as_slice();
+        let b = raw.data.as_slice();
+        let t = match raw.header.dtype {
+            Dtype::F32 => Tensor::from_shape_vec(s, words(b, f32::from_le_bytes)),
+            Dtype::F64 => Tensor::from_shape_vec(s, words(b, f64::from_le_bytes)),
+            Dtype::I32 => Tensor::from_shape_vec(s, words(b, i32::from_le_bytes)),
+            Dtype::U32 => Tensor::from_shape_vec(s, words(b, u32::from_le_bytes)),
+            Dtype::U8 => Tensor::from_shape_vec(s, b.to_vec()),
+        };
+        t.map_err(|e| Error::invalid(path.display().to_string(), e.to_string()))
     }
 
     /// Reads a `.npy` file and checks its dtype and shape (`None` in `shape`
-    /// matches any extent).
+    /// matches any extent) from the header, before the data is read.
     pub fn read_npy_checked(
         path: &Path,
         dtype: &[&str],
         shape: &[Option<usize>],
     ) -> Result<Tensor> {
-        let t = Tensor::read_npy(path)?;
         let at = path.display().to_string();
-        if !dtype.contains(&t.dtype()) {
-            return Err(Error::invalid(
-                at,
-                format!("dtype is {}, expected one of {dtype:?}", t.dtype()),
-            ));
-        }
-        let ok = t.shape().len() == shape.len()
-            && t.shape()
-                .iter()
-                .zip(shape)
-                .all(|(&s, e)| e.is_none_or(|e| e == s));
-        if !ok {
-            let want: Vec<String> = shape
-                .iter()
-                .map(|e| e.map_or("*".into(), |e| e.to_string()))
-                .collect();
-            return Err(Error::invalid(
-                at,
-                format!("shape is {:?}, expected ({})", t.shape(), want.join(", ")),
-            ));
-        }
-        Ok(t)
+        let raw = npy::read(path, MemBudget::from_machine(), |h| {
+            if !dtype.contains(&h.dtype.name()) {
+                return Err(Error::invalid(
+                    at.clone(),
+                    format!("dtype is {}, expected one of {dtype:?}", h.dtype.name()),
+                ));
+            }
+            let ok = h.shape.len() == shape.len()
+                && h.shape
+                    .iter()
+                    .zip(shape)
+                    .all(|(&s, e)| e.is_none_or(|e| e == s));
+            if !ok {
+                let want: Vec<String> = shape
+                    .iter()
+                    .map(|e| e.map_or("*".into(), |e| e.to_string()))
+                    .collect();
+                return Err(Error::invalid(
+                    at.clone(),
+                    format!("shape is {:?}, expected ({})", h.shape, want.join(", ")),
+                ));
+            }
+            Ok(())
+        })?;
+        Tensor::from_raw(raw, path)
     }
 }
 

@@ -5,8 +5,16 @@
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
+/// The binary under test; `HPJUDGE_IT_BIN` points these tests at another
+/// build (how a fix is shown to make a test pass that failed before it).
+fn exe() -> PathBuf {
+    std::env::var_os("HPJUDGE_IT_BIN")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| PathBuf::from(env!("CARGO_BIN_EXE_hpjudge")))
+}
+
 fn hpjudge() -> Command {
-    let mut c = Command::new(env!("CARGO_BIN_EXE_hpjudge"));
+    let mut c = Command::new(exe());
     c.current_dir(env!("CARGO_MANIFEST_DIR")).env_remove("CI");
     c
 }
@@ -78,7 +86,7 @@ fn judge_self_test_gets_every_expected_verdict() {
         let got = c["results"][0]["verdict"].as_str().unwrap();
         assert_eq!(got, expect, "case {}", c["id"]);
     }
-    assert_eq!(b["schema_version"], 1);
+    assert_eq!(b["schema_version"], 2);
     let ids: Vec<&str> = cases.iter().map(|c| c["id"].as_str().unwrap()).collect();
     let mut sorted = ids.clone();
     sorted.sort();
@@ -280,7 +288,9 @@ fn dump_failing_writes_rays_that_render_replays() {
     let t = text(&o);
     assert_eq!(o.status.code(), Some(1), "{t}");
     assert!(
-        t.contains("hpjudge run") && t.contains("--filter planted_fail"),
+        t.contains("hpjudge run")
+            && t.contains("--filter=planted_fail")
+            && t.contains("repro/planted_fail-cpu"),
         "repro line missing: {t}"
     );
     let case = d.join("out/planted_fail/cpu");
@@ -353,4 +363,494 @@ fn version_names_the_git_revision() {
     let o = hpjudge().arg("--version").output().unwrap();
     let t = text(&o);
     assert!(t.starts_with("hpjudge ") && t.contains('('), "{t}");
+}
+
+/// A 192-byte `.npy` whose header claims (3000, 3000, 3000) float32.
+fn huge_header_npy(path: &Path) {
+    let mut h =
+        "{'descr': '<f4', 'fortran_order': False, 'shape': (3000, 3000, 3000), }".to_string();
+    while !(10 + h.len() + 1).is_multiple_of(64) {
+        h.push(' ');
+    }
+    h.push('\n');
+    let mut b = b"\x93NUMPY\x01\x00".to_vec();
+    b.extend((h.len() as u16).to_le_bytes());
+    b.extend(h.as_bytes());
+    b.resize(192, 0);
+    std::fs::write(path, b).unwrap();
+}
+
+#[test]
+fn a_npy_header_claiming_108_gb_is_refused_on_every_load_path() {
+    let d = tmp("hugenpy");
+    huge_header_npy(&d.join("huge.npy"));
+    std::fs::write(
+        d.join("scene.yaml"),
+        "renderer: volume\ncamera: {type: ortho, position: [0,0,3], target: [0,0,0]}\nwidth: 8\nheight: 8\nfield: {type: grid, file: huge.npy}\n",
+    )
+    .unwrap();
+    let m = manifest(
+        &d,
+        "cases:\n  - id: a\n    op: volume.render\n    scene: scene.yaml\n",
+    );
+    let claim = "108000000000 bytes";
+    let o = hpjudge().arg("check").arg(&m).output().unwrap();
+    assert_eq!(o.status.code(), Some(2), "check: {}", text(&o));
+    assert!(text(&o).contains(claim), "check: {}", text(&o));
+    let o = hpjudge()
+        .arg("render")
+        .arg(d.join("scene.yaml"))
+        .arg("--out")
+        .arg(d.join("r"))
+        .output()
+        .unwrap();
+    assert_eq!(o.status.code(), Some(2), "render grid: {}", text(&o));
+    let o = hpjudge()
+        .args(["render", "TESTS/scenes/rays_pinhole.yaml", "--rays"])
+        .arg(d.join("huge.npy"))
+        .arg("--out")
+        .arg(d.join("r"))
+        .output()
+        .unwrap();
+    assert_eq!(o.status.code(), Some(2), "--rays: {}", text(&o));
+    assert!(text(&o).contains(claim), "--rays: {}", text(&o));
+    let o = hpjudge()
+        .args(["render", "TESTS/scenes/vol_constant.yaml", "--grad-from"])
+        .arg(d.join("huge.npy"))
+        .arg("--out")
+        .arg(d.join("r"))
+        .output()
+        .unwrap();
+    assert!(
+        matches!(o.status.code(), Some(1 | 2)),
+        "--grad-from: {}",
+        text(&o)
+    );
+    assert!(text(&o).contains("3000"), "--grad-from: {}", text(&o));
+    std::fs::create_dir_all(d.join("GOLDENS")).unwrap();
+    huge_header_npy(&d.join("GOLDENS/huge.npy"));
+    let m = manifest(
+        &d,
+        "cases:\n  - id: g\n    op: selftest.good\n    assert:\n      - max_abs: {a: rgb, b: \"golden:huge.npy\", tol: exact}\n",
+    );
+    let o = hpjudge()
+        .arg("run")
+        .arg(&m)
+        .arg("--json")
+        .arg("--out")
+        .arg(d.join("out"))
+        .output()
+        .unwrap();
+    let b: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap_or_default();
+    let r = &b["cases"][0]["results"][0];
+    assert_eq!(r["verdict"], "ERROR", "golden: {}", text(&o));
+    assert!(
+        r["reason"].as_str().unwrap_or("").contains(claim),
+        "golden: {r}"
+    );
+}
+
+/// Waits up to `secs` for a child; kills it and returns None past that.
+fn wait_for(child: &mut std::process::Child, secs: f64) -> Option<std::process::ExitStatus> {
+    let t = std::time::Instant::now();
+    while t.elapsed().as_secs_f64() < secs {
+        if let Ok(Some(s)) = child.try_wait() {
+            return Some(s);
+        }
+        std::thread::sleep(std::time::Duration::from_millis(20));
+    }
+    let _ = child.kill();
+    let _ = child.wait();
+    None
+}
+
+/// Pids whose parent is `pid` (from /proc).
+fn children_of(pid: u32) -> Vec<u32> {
+    let mut v = Vec::new();
+    for e in std::fs::read_dir("/proc").unwrap().flatten() {
+        let Ok(p) = e.file_name().to_string_lossy().parse::<u32>() else {
+            continue;
+        };
+        let Ok(stat) = std::fs::read_to_string(format!("/proc/{p}/stat")) else {
+            continue;
+        };
+        let after = stat.rsplit(')').next().unwrap_or("");
+        let ppid: u32 = after
+            .split_whitespace()
+            .nth(1)
+            .and_then(|x| x.parse().ok())
+            .unwrap_or(0);
+        if ppid == pid {
+            v.push(p);
+        }
+    }
+    v
+}
+
+/// Whether `pid` is alive (not gone, not a zombie).
+fn alive(pid: u32) -> bool {
+    std::fs::read_to_string(format!("/proc/{pid}/stat"))
+        .map(|s| {
+            let state = s.rsplit(')').next().unwrap_or("").split_whitespace().next();
+            state != Some("Z")
+        })
+        .unwrap_or(false)
+}
+
+/// Starts `hpjudge run` on one hanging case into `<d>/out` and waits (up to
+/// 20 s) for its worker; returns the judge and the worker pids.
+fn start_hanging_run(d: &Path) -> (std::process::Child, Vec<u32>) {
+    let m = manifest(d, "cases:\n  - id: hang\n    op: selftest.hang\n");
+    let judge = hpjudge()
+        .arg("run")
+        .arg(&m)
+        .arg("--out")
+        .arg(d.join("out"))
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::null())
+        .spawn()
+        .unwrap();
+    let t = std::time::Instant::now();
+    let mut workers = vec![];
+    while workers.is_empty() && t.elapsed().as_secs() < 20 {
+        std::thread::sleep(std::time::Duration::from_millis(20));
+        workers = children_of(judge.id());
+    }
+    (judge, workers)
+}
+
+#[test]
+fn a_second_run_into_the_same_out_folder_is_refused_naming_the_holder() {
+    let d = tmp("lock");
+    let (mut first, _) = start_hanging_run(&d);
+    let o = hpjudge()
+        .arg("run")
+        .arg("TESTS/selftest/manifest.yaml")
+        .arg("--out")
+        .arg(d.join("out"))
+        .output()
+        .unwrap();
+    let _ = first.kill();
+    let _ = first.wait();
+    assert_eq!(o.status.code(), Some(2), "{}", text(&o));
+    assert!(
+        text(&o).contains(&format!("in use by hpjudge pid {}", first.id())),
+        "{}",
+        text(&o)
+    );
+}
+
+#[test]
+fn killing_the_judge_with_sigkill_kills_its_worker() {
+    let d = tmp("kill9");
+    let (mut judge, workers) = start_hanging_run(&d);
+    assert_eq!(workers.len(), 1, "no worker started");
+    judge.kill().unwrap();
+    judge.wait().unwrap();
+    let t = std::time::Instant::now();
+    while alive(workers[0]) && t.elapsed().as_secs_f64() < 3.0 {
+        std::thread::sleep(std::time::Duration::from_millis(20));
+    }
+    let survived = alive(workers[0]);
+    if survived {
+        let _ = Command::new("kill")
+            .arg("-9")
+            .arg(workers[0].to_string())
+            .status();
+    }
+    assert!(!survived, "worker {} outlived the judge by 3 s", workers[0]);
+}
+
+#[test]
+fn a_worker_ends_itself_at_its_own_deadline() {
+    use hotpath::judge::job::{Job, Task};
+    let d = tmp("deadline");
+    let m = manifest(&d, "cases:\n  - id: hang\n    op: selftest.hang\n");
+    let man = hotpath::judge::manifest::Manifest::load(&m).unwrap();
+    let th = hotpath::judge::thresholds::Thresholds::load(&d.join("thresholds.yaml"), "default")
+        .unwrap();
+    let job = Job {
+        task: Task::Case {
+            case: Box::new(man.cases[0].clone()),
+            backend: hotpath::judge::ops::BackendKind::Cpu,
+        },
+        thresholds: th,
+        perf: Default::default(),
+        out: d.join("out"),
+        goldens: d.join("GOLDENS"),
+        seed: 0,
+        threads: 1,
+        mem_limit: None,
+        dump: false,
+        bless: false,
+        deadline_s: 1.0,
+    };
+    let mut w = hpjudge()
+        .arg("worker")
+        .arg("--result")
+        .arg(d.join("r.json"))
+        .stdin(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::null())
+        .spawn()
+        .unwrap();
+    use std::io::Write;
+    let _ = w
+        .stdin
+        .take()
+        .unwrap()
+        .write_all(serde_yaml::to_string(&job).unwrap().as_bytes());
+    let s = wait_for(&mut w, 10.0).expect("worker still running 10 s after a 1 s deadline");
+    assert_eq!(s.code(), Some(124));
+}
+
+#[test]
+fn a_closed_stdout_ends_the_run_quietly_with_an_incomplete_scoreboard() {
+    use std::io::BufRead;
+    let d = tmp("epipe");
+    let mut judge = hpjudge()
+        .arg("run")
+        .arg("TESTS/selftest/manifest.yaml")
+        .arg("--out")
+        .arg(d.join("out"))
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    let mut lines = std::io::BufReader::new(judge.stdout.take().unwrap()).lines();
+    for _ in 0..3 {
+        lines.next().unwrap().unwrap();
+    }
+    drop(lines);
+    let status = wait_for(&mut judge, 60.0).expect("judge did not end");
+    let mut err = String::new();
+    std::io::Read::read_to_string(&mut judge.stderr.take().unwrap(), &mut err).unwrap();
+    assert!(!err.contains("panicked"), "{err}");
+    assert_eq!(status.code(), Some(1), "{err}");
+    let b: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(d.join("out/scoreboard.json")).unwrap())
+            .unwrap();
+    assert_eq!(b["complete"], false, "{b}");
+    assert!(
+        b["cases_done"].as_u64().unwrap() < b["cases_total"].as_u64().unwrap(),
+        "{b}"
+    );
+}
+
+#[test]
+fn a_complete_run_records_counts_and_input_hashes() {
+    let d = tmp("hashes");
+    let o = hpjudge()
+        .args([
+            "run",
+            "TESTS/rays/manifest.yaml",
+            "--filter",
+            "rays_clip",
+            "--json",
+            "--out",
+        ])
+        .arg(&d)
+        .output()
+        .unwrap();
+    let b: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert_eq!(b["complete"], true, "{}", text(&o));
+    assert_eq!(b["cases_total"], 2);
+    assert_eq!(b["cases_done"], 2);
+    for k in ["manifest_tree_sha256", "thresholds_sha256", "scenes_sha256"] {
+        assert_eq!(
+            b["inputs"][k].as_str().unwrap_or("").len(),
+            64,
+            "{k}: {}",
+            b["inputs"]
+        );
+    }
+}
+
+fn thresholds_with(dir: &Path, from: &str, to: &str) -> PathBuf {
+    let t = std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("thresholds.yaml"))
+        .unwrap();
+    assert!(t.contains(from), "{from}");
+    let p = dir.join("th.yaml");
+    std::fs::write(&p, t.replacen(from, to, 1)).unwrap();
+    p
+}
+
+#[test]
+fn infinite_tolerances_and_nan_time_limits_are_refused_on_load() {
+    let d = tmp("thvals");
+    for (from, to, key) in [
+        (
+            "  exact: {}",
+            "  exact: {atol: .inf}",
+            "tolerances.exact.atol",
+        ),
+        ("  default: 120", "  default: .nan", "timeouts.default"),
+        (
+            "  selftest_short: 3",
+            "  selftest_short: -3",
+            "timeouts.selftest_short",
+        ),
+    ] {
+        let th = thresholds_with(&d, from, to);
+        let o = hpjudge()
+            .args(["check", "TESTS/selftest/manifest.yaml", "--thresholds"])
+            .arg(&th)
+            .output()
+            .unwrap();
+        assert_eq!(o.status.code(), Some(2), "{to}: {}", text(&o));
+        assert!(text(&o).contains(key), "{to}: {}", text(&o));
+    }
+}
+
+#[test]
+fn deeply_nested_yaml_is_refused_in_under_a_second() {
+    let d = tmp("nest");
+    let m = manifest(
+        &d,
+        &("cases: ".to_string() + &"[".repeat(100_000) + &"]".repeat(100_000)),
+    );
+    let t = std::time::Instant::now();
+    let o = hpjudge().arg("check").arg(&m).output().unwrap();
+    assert!(t.elapsed().as_secs_f64() < 1.0, "{:?}", t.elapsed());
+    assert_eq!(o.status.code(), Some(2), "{}", text(&o));
+    assert!(text(&o).contains("nests deeper than"), "{}", text(&o));
+}
+
+#[test]
+fn absurd_thread_counts_are_refused() {
+    let mut c = hpjudge()
+        .args([
+            "run",
+            "TESTS/selftest/manifest.yaml",
+            "--threads",
+            "100000",
+            "--out",
+        ])
+        .arg(tmp("threads"))
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    let s = wait_for(&mut c, 10.0).expect("still running after 10 s");
+    let o = c.wait_with_output().unwrap();
+    assert_eq!(s.code(), Some(2), "{}", text(&o));
+    assert!(text(&o).contains("over the limit of 1024"), "{}", text(&o));
+}
+
+#[test]
+fn a_directory_given_as_a_file_is_called_a_directory() {
+    let d = tmp("isdir");
+    let o = hpjudge().arg("check").arg(&d).output().unwrap();
+    assert_eq!(o.status.code(), Some(2), "{}", text(&o));
+    assert!(text(&o).contains("is a directory"), "{}", text(&o));
+    std::fs::create_dir_all(d.join("scene.yaml")).unwrap();
+    bad_input(
+        &format!(
+            "cases:\n  - id: a\n    op: rays.generate\n    scene: {}\n",
+            d.join("scene.yaml").display()
+        ),
+        &["is a directory"],
+    );
+}
+
+#[test]
+fn ci_overrides_and_ref_sets_are_validated_by_check() {
+    let d = tmp("ciset");
+    let m = manifest(
+        &d,
+        "cases:\n  - id: a\n    op: rays.generate\n    scene: SCENES/rays_pinhole.yaml\n    ci: {width: 0}\n",
+    );
+    let o = hpjudge().arg("check").arg(&m).output().unwrap();
+    assert_eq!(o.status.code(), Some(2), "ci: {}", text(&o));
+    assert!(text(&o).contains("cases[a].ci"), "ci: {}", text(&o));
+    let m = manifest(
+        &d,
+        "cases:\n  - id: a\n    op: rays.generate\n    scene: SCENES/rays_pinhole.yaml\n    refs:\n      r: {set: {height: -4}}\n",
+    );
+    let o = hpjudge().arg("check").arg(&m).output().unwrap();
+    assert_eq!(o.status.code(), Some(2), "ref set: {}", text(&o));
+    assert!(text(&o).contains("refs.r"), "ref set: {}", text(&o));
+}
+
+#[test]
+fn perf_gates_outside_a_perf_profile_are_a_skip_with_the_measured_value() {
+    let d = tmp("perfskip");
+    let o = hpjudge()
+        .args([
+            "run",
+            "TESTS/rays/manifest.yaml",
+            "--filter",
+            "rays_throughput_1024",
+            "--profile",
+            "default",
+            "--json",
+            "--out",
+        ])
+        .arg(&d)
+        .output()
+        .unwrap();
+    let b: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    let r = &b["cases"][0]["results"][0];
+    assert_eq!(r["verdict"], "SKIP", "{r}");
+    assert!(
+        r["reason"].as_str().unwrap().contains("mrays_per_s = "),
+        "{r}"
+    );
+}
+
+#[test]
+fn compare_refuses_mixed_kinds_unknown_versions_and_bad_thresholds() {
+    let d = tmp("compare2");
+    perf_json(&d.join("base.json"), 100.0, 0.04);
+    let board = serde_json::json!({"schema_version": 2, "cases": []});
+    std::fs::write(d.join("board.json"), board.to_string()).unwrap();
+    let o = hpjudge()
+        .arg("compare")
+        .arg(d.join("base.json"))
+        .arg(d.join("board.json"))
+        .output()
+        .unwrap();
+    assert_eq!(o.status.code(), Some(2), "mixed: {}", text(&o));
+    let mut v: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(d.join("base.json")).unwrap()).unwrap();
+    v["schema_version"] = 99.into();
+    std::fs::write(d.join("v99.json"), v.to_string()).unwrap();
+    let o = hpjudge()
+        .arg("compare")
+        .arg(d.join("base.json"))
+        .arg(d.join("v99.json"))
+        .output()
+        .unwrap();
+    assert_eq!(o.status.code(), Some(2), "version: {}", text(&o));
+    let o = hpjudge()
+        .arg("compare")
+        .arg(d.join("base.json"))
+        .arg(d.join("base.json"))
+        .args(["--threshold", "NaN"])
+        .output()
+        .unwrap();
+    assert_eq!(o.status.code(), Some(2), "NaN: {}", text(&o));
+}
+
+#[test]
+fn compare_counts_a_renamed_or_errored_scenario_as_a_regression() {
+    let d = tmp("compare3");
+    perf_json(&d.join("base.json"), 100.0, 0.04);
+    let mut v: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(d.join("base.json")).unwrap()).unwrap();
+    v["scenarios"][0]["id"] = "renamed".into();
+    std::fs::write(d.join("renamed.json"), v.to_string()).unwrap();
+    v["scenarios"][0]["id"] = "s".into();
+    v["scenarios"][0]["metrics"] = serde_json::json!({});
+    v["scenarios"][0]["error"] = "worker panicked".into();
+    std::fs::write(d.join("errored.json"), v.to_string()).unwrap();
+    for f in ["renamed.json", "errored.json"] {
+        let o = hpjudge()
+            .arg("compare")
+            .arg(d.join("base.json"))
+            .arg(d.join(f))
+            .output()
+            .unwrap();
+        assert_eq!(o.status.code(), Some(1), "{f}: {}", text(&o));
+        assert!(text(&o).contains("Regression"), "{f}: {}", text(&o));
+    }
 }

@@ -2,7 +2,7 @@
 //! stderr. Exit codes: 0 all passed, 1 a case failed, errored or timed out
 //! (or a perf regression), 2 unusable input.
 
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::process::ExitCode;
 
 use anyhow::{bail, Context};
@@ -14,12 +14,14 @@ use hotpath::judge::artifacts::write_tensor;
 use hotpath::judge::load::JudgeInputError;
 use hotpath::judge::manifest::Manifest;
 use hotpath::judge::ops::{self, BackendKind};
-use hotpath::judge::perf::{compare, read_metrics, Change, PerfScenarios, ScenarioResult};
+use hotpath::judge::perf::{
+    compare, missing_or_errored, read_pair, validate_compare_args, Change, ScenarioResult,
+};
 use hotpath::judge::render::{self, RenderRequest};
 use hotpath::judge::runner::{self, load_inputs, print_summary, BackendFilter, RunOptions};
-use hotpath::judge::thresholds::Thresholds;
-use hotpath::judge::worker::{find_case, run_case, run_scenario, WorkerEnv};
-use hotpath::judge::{bless, env, perf_run};
+use hotpath::judge::scoreboard::Verdict;
+use hotpath::judge::worker;
+use hotpath::judge::{env, perf_run};
 use hotpath::real::Precision;
 
 /// hpjudge: runs hotpath's renderers on declarative cases and judges them.
@@ -32,8 +34,8 @@ pub struct Cli {
 
 #[derive(clap::Args, Debug, Clone)]
 struct Common {
-    /// Rayon threads (0 = one per logical CPU).
-    #[arg(long, default_value_t = 0)]
+    /// Rayon threads (0 = one per logical CPU; at most 1024).
+    #[arg(long, default_value_t = 0, value_parser = runner::parse_threads)]
     threads: usize,
     /// Seed for every stochastic choice.
     #[arg(long, default_value_t = 0)]
@@ -188,30 +190,9 @@ struct BlessArgs {
 
 #[derive(clap::Args, Debug)]
 struct WorkerArgs {
-    #[arg(long)]
-    manifest: Option<PathBuf>,
-    #[arg(long)]
-    case: Option<String>,
-    #[arg(long)]
-    scenarios: Option<PathBuf>,
-    #[arg(long)]
-    scenario: Option<String>,
-    #[arg(long, value_enum, default_value = "cpu")]
-    backend: BackendArg,
-    #[arg(long, default_value = "out")]
-    out: PathBuf,
-    #[arg(long)]
-    thresholds: PathBuf,
-    #[arg(long)]
-    profile: String,
+    /// Where the worker writes its result (the job comes on stdin).
     #[arg(long)]
     result: PathBuf,
-    #[arg(long)]
-    dump: bool,
-    #[arg(long)]
-    bless: bool,
-    #[command(flatten)]
-    common: Common,
 }
 
 #[derive(Clone, Copy, Debug, clap::ValueEnum)]
@@ -358,14 +339,15 @@ fn cmd_run(a: RunArgs) -> anyhow::Result<Outcome> {
         profile: a.profile,
         thresholds: a.thresholds,
         mem_limit: a.common.mem_limit,
+        bless: false,
     };
     let board = runner::run(&opts)?;
     if opts.json {
-        println!("{}", serde_json::to_string_pretty(&board)?);
+        runner::emit(&serde_json::to_string_pretty(&board)?);
     } else {
         print_summary(&board, &opts.out);
     }
-    Ok(if board.summary.all_good() {
+    Ok(if board.all_good() {
         Outcome::Ok
     } else {
         Outcome::Failed
@@ -485,6 +467,7 @@ fn cmd_perf(a: &PerfArgs) -> anyhow::Result<Outcome> {
         a.filter.as_deref(),
         a.common.threads,
         a.common.seed,
+        a.common.mem_limit,
         |r| {
             if !a.json {
                 print_scenario(r);
@@ -533,15 +516,29 @@ fn print_scenario(r: &ScenarioResult) {
 /// `hpjudge compare`: each metric's change; exit 1 on a regression.
 fn cmd_compare(a: &CompareArgs) -> anyhow::Result<Outcome> {
     let (threshold, noise_k) = (a.threshold, a.noise_k);
-    let (b, n) = (read_metrics(&a.base)?, read_metrics(&a.new)?);
-    let rows = compare(&b, &n, threshold, noise_k);
+    validate_compare_args(threshold, noise_k)?;
+    let (b, n) = read_pair(&a.base, &a.new)?;
+    let rows = compare(&b.metrics, &n.metrics, threshold, noise_k);
+    let missing = missing_or_errored(&b, &n);
     let regressions = rows
         .iter()
         .filter(|r| r.verdict == Change::Regression)
-        .count();
+        .count()
+        + missing.len();
+    if rows.is_empty() && missing.is_empty() {
+        bail!(
+            "no metric of {} is in {}: nothing was compared",
+            a.base.display(),
+            a.new.display()
+        );
+    }
     if a.json {
-        println!("{}", serde_json::to_string_pretty(&rows)?);
+        let v = serde_json::json!({"metrics": rows, "missing_or_errored": missing});
+        println!("{}", serde_json::to_string_pretty(&v)?);
     } else {
+        for m in &missing {
+            println!("{:<52} Regression: {}", m.id, m.why);
+        }
         println!(
             "{:<52} {:>12} {:>12} {:>8} {:>7}  verdict",
             "metric", "base", "new", "change", "noise"
@@ -571,57 +568,43 @@ fn cmd_bless(a: &BlessArgs) -> anyhow::Result<Outcome> {
     if std::env::var_os("CI").is_some() {
         bail!("bless refuses to run when CI is set: goldens change only on request, reviewed");
     }
-    let wrote = bless::bless(
-        &a.manifest,
-        a.filter.as_deref(),
-        a.profile.as_deref(),
-        |f| println!("blessed {f}"),
-    )
-    .map_err(|e| match e {
-        // Unusable input keeps its type: exit code 2.
-        bless::BlessError::Input(i) => anyhow::Error::new(i),
-        e => anyhow::Error::msg(e.to_string()),
-    })?;
+    // Each case runs in a worker, under the same limits as `run`.
+    let opts = RunOptions {
+        manifest: a.manifest.clone(),
+        out: std::env::temp_dir().join(format!("hpjudge-bless-{}", std::process::id())),
+        filter: a.filter.clone(),
+        backend: BackendFilter::Cpu,
+        threads: 0,
+        seed: 0,
+        json: true,
+        junit: None,
+        dump_failing: false,
+        require_gpu: false,
+        profile: a.profile.clone(),
+        thresholds: None,
+        mem_limit: None,
+        bless: true,
+    };
+    let board = runner::run(&opts)?;
+    let mut wrote = 0;
+    for c in &board.cases {
+        for r in &c.results {
+            if r.verdict != Verdict::Pass {
+                bail!("{}: {} {}", c.id, r.verdict.name(), r.reason);
+            }
+            for f in &r.artifacts {
+                println!("blessed {f}");
+                wrote += 1;
+            }
+        }
+    }
     println!("{wrote} golden files written; review them with git diff before committing");
     Ok(Outcome::Ok)
 }
 
 /// `hpjudge worker` (internal): one case or scenario, its result as JSON in `--result`.
 fn cmd_worker(a: &WorkerArgs) -> anyhow::Result<Outcome> {
-    init_threads(a.common.threads);
-    let th = Thresholds::load(&a.thresholds, &a.profile)?;
-    let root = a.thresholds.parent().unwrap_or(Path::new(".")).to_path_buf();
-    let perf_path = root.join("perf_scenarios.yaml");
-    let perf = match &a.scenarios {
-        Some(p) => PerfScenarios::load(p)?,
-        None if perf_path.is_file() => PerfScenarios::load(&perf_path)?,
-        None => PerfScenarios::default(),
-    };
-    let goldens = root.join("GOLDENS");
-    let wenv = WorkerEnv {
-        thresholds: &th,
-        perf: &perf,
-        out: &a.out,
-        goldens: &goldens,
-        seed: a.common.seed,
-        budget: budget(&a.common),
-        dump: a.dump,
-        bless: a.bless,
-    };
-    let text = match (&a.manifest, &a.case, &a.scenario) {
-        (Some(m), Some(c), None) => {
-            let lc = find_case(m, c).map_err(anyhow::Error::msg)?;
-            serde_json::to_string(&run_case(&lc, a.backend.into(), &wenv))?
-        }
-        (None, None, Some(s)) => {
-            let sc = perf
-                .find(s)
-                .with_context(|| format!("no perf scenario {s:?}"))?;
-            serde_json::to_string(&run_scenario(sc, &perf, &wenv))?
-        }
-        _ => bail!("worker needs --manifest and --case, or --scenario"),
-    };
-    std::fs::write(&a.result, text).with_context(|| format!("writing {}", a.result.display()))?;
+    worker::serve(&a.result).map_err(anyhow::Error::msg)?;
     Ok(Outcome::Ok)
 }
 

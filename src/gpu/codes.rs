@@ -82,7 +82,10 @@ mod tests {
     fn a_changed_constant_is_seen() {
         let text = "const FIELD_SHELL: u32 = 7u;\n";
         assert_eq!(wgsl_u32_const(text, "FIELD_SHELL"), Some(7));
-        assert_ne!(wgsl_u32_const(text, "FIELD_SHELL"), Some(FieldKind::Shell as u32));
+        assert_ne!(
+            wgsl_u32_const(text, "FIELD_SHELL"),
+            Some(FieldKind::Shell as u32)
+        );
         assert_eq!(wgsl_u32_const(text, "FIELD_GRID"), None);
     }
 }

@@ -20,8 +20,8 @@ use crate::camera::Camera;
 use crate::error::{Error, Result};
 use crate::rays::RayGen;
 
-pub use super::codes::FLAG_UNSTABLE;
 use super::codes::FieldKind;
+pub use super::codes::FLAG_UNSTABLE;
 
 /// A node-aligned grid in f32: `n = (nx, ny, nz)`, `data` C order with
 /// `ch` channels innermost, `scale = (n - 1) / (max - min)` per axis.
@@ -158,7 +158,9 @@ impl VolParams {
         (p.stratified, p.seed) = v.stratified.map_or((0, 0), |s| (1, s));
         p.log_path = v.log_path as u32;
         match v.field {
-            GpuField::Constant { s } => (p.field_kind, p.field_a[0]) = (FieldKind::Constant as u32, s),
+            GpuField::Constant { s } => {
+                (p.field_kind, p.field_a[0]) = (FieldKind::Constant as u32, s)
+            }
             GpuField::Slabs { axis, sigma, .. } => {
                 (p.field_kind, p.slab_axis, p.slab_n) =
                     (FieldKind::Slabs as u32, axis, sigma.len() as u32);

@@ -225,6 +225,11 @@ impl<'a> Evidence<'a> {
         }
         let rep: usize = shape[ms.len()..].iter().product();
         let mv = m.to_f64_vec();
+        if rep == 0 || mv.iter().all(|&x| x == 0.0) {
+            return Err(format!(
+                "mask {n:?} selects no elements of shape {shape:?}: the check would compare nothing"
+            ));
+        }
         Ok(Some(
             mv.iter()
                 .flat_map(|&x| std::iter::repeat_n(x != 0.0, rep))
@@ -265,6 +270,11 @@ fn check(
 
 /// Pairs `(a, b)` of an element-wise comparison, with a scalar `b` broadcast.
 fn pairs(a: &[f64], ashape: &[usize], b: &Vals, an: &str) -> Result<Vec<(f64, f64)>, String> {
+    if a.is_empty() {
+        return Err(format!(
+            "{an} of shape {ashape:?} has no elements: the check would compare nothing"
+        ));
+    }
     match b {
         Vals::Scalar(x) => Ok(a.iter().map(|&v| (v, *x)).collect()),
         Vals::Arr { v, shape } => {

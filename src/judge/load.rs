@@ -48,6 +48,13 @@ pub fn load_yaml_typed<T: DeserializeOwned>(path: &Path) -> Result<(T, String), 
     let at = path.display().to_string();
     let meta = std::fs::metadata(path)
         .map_err(|e| JudgeInputError::new(&at, "", format!("cannot read: {e}")))?;
+    if meta.is_dir() {
+        return Err(JudgeInputError::new(
+            &at,
+            "",
+            "is a directory, not a YAML file",
+        ));
+    }
     if meta.len() > MAX_YAML_BYTES {
         return Err(JudgeInputError::new(
             &at,
@@ -60,6 +67,7 @@ pub fn load_yaml_typed<T: DeserializeOwned>(path: &Path) -> Result<(T, String), 
     }
     let text = std::fs::read_to_string(path)
         .map_err(|e| JudgeInputError::new(&at, "", format!("cannot read: {e}")))?;
+    crate::scene::refuse_deep_nesting(&text).map_err(|what| JudgeInputError::new(&at, "", what))?;
     let de = serde_yaml::Deserializer::from_str(&text);
     match serde_path_to_error::deserialize::<_, T>(de) {
         Ok(v) => Ok((v, text)),

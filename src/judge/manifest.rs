@@ -8,6 +8,7 @@ use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Serialize};
 use serde_yaml::Value;
+use sha2::{Digest, Sha256};
 
 use super::asserts::Assertion;
 use super::load::{find_line, load_yaml_typed, JudgeInputError};
@@ -113,7 +114,7 @@ struct ManifestFile {
 }
 
 /// A case with where it came from.
-#[derive(Clone, Debug)]
+#[derive(Clone, Debug, Deserialize, Serialize)]
 pub struct LoadedCase {
     pub case: Case,
     /// The manifest file that defines it.
@@ -147,6 +148,10 @@ impl LoadedCase {
 pub struct Manifest {
     pub path: PathBuf,
     pub cases: Vec<LoadedCase>,
+    /// SHA-256 over every file of the include tree (path and content, load order).
+    pub tree_sha256: String,
+    /// Files in the include tree.
+    pub files: usize,
 }
 
 /// Largest include depth (cycles are caught separately).
@@ -158,7 +163,8 @@ impl Manifest {
     pub fn load(path: &Path) -> Result<Manifest, JudgeInputError> {
         let mut cases = Vec::new();
         let mut stack = Vec::new();
-        load_into(path, &mut cases, &mut stack)?;
+        let mut tree = Vec::new();
+        load_into(path, &mut cases, &mut stack, &mut tree)?;
         let mut seen: BTreeMap<String, String> = BTreeMap::new();
         for c in &cases {
             if let Some(first) = seen.insert(c.case.id.clone(), c.at()) {
@@ -169,9 +175,15 @@ impl Manifest {
                 ));
             }
         }
+        let mut h = Sha256::new();
+        for line in &tree {
+            h.update(line.as_bytes());
+        }
         Ok(Manifest {
             path: path.to_path_buf(),
             cases,
+            tree_sha256: format!("{:x}", h.finalize()),
+            files: tree.len(),
         })
     }
 
@@ -193,6 +205,7 @@ fn load_into(
     path: &Path,
     out: &mut Vec<LoadedCase>,
     stack: &mut Vec<PathBuf>,
+    tree: &mut Vec<String>,
 ) -> Result<(), JudgeInputError> {
     let at = path.display().to_string();
     let canon = path
@@ -209,19 +222,22 @@ fn load_into(
         ));
     }
     let (file, text): (ManifestFile, String) = load_yaml_typed(path)?;
+    tree.push(format!(
+        "{:x}  {}\n",
+        Sha256::digest(text.as_bytes()),
+        path.display()
+    ));
     stack.push(canon);
     let dir = path.parent().unwrap_or(Path::new("."));
     for (i, inc) in file.include.iter().enumerate() {
         let p = dir.join(inc);
         if !p.is_file() {
-            return Err(JudgeInputError::new(
-                &at,
-                &format!("include[{i}]"),
-                format!("{} does not exist", p.display()),
-            )
-            .at_line(find_line(&text, inc)));
+            return Err(
+                JudgeInputError::new(&at, &format!("include[{i}]"), not_a_file(&p))
+                    .at_line(find_line(&text, inc)),
+            );
         }
-        load_into(&p, out, stack)?;
+        load_into(&p, out, stack, tree)?;
     }
     stack.pop();
     for case in file.cases {
@@ -233,6 +249,15 @@ fn load_into(
         });
     }
     Ok(())
+}
+
+/// Why `p` cannot be read as a file: "is a directory" or "does not exist".
+pub fn not_a_file(p: &Path) -> String {
+    if p.is_dir() {
+        format!("{} is a directory, not a file", p.display())
+    } else {
+        format!("{} does not exist", p.display())
+    }
 }
 
 /// Whether a case id is safe as a folder name: `[A-Za-z0-9_.-]+`, not `.`/`..`.
@@ -358,7 +383,7 @@ fn validate_case(
         if let Some(s) = scene {
             let p = lc.dir().join(&s);
             if !p.is_file() {
-                return err("scene", format!("{} does not exist", p.display()));
+                return err("scene", not_a_file(&p));
             }
         }
     }

@@ -8,10 +8,11 @@
 //! | `perf.rs` | perf scenarios, noise-aware `compare` |
 //! | `perf_run.rs` | `hpjudge perf`: scenarios in workers, perf.json |
 //! | `render.rs` | `hpjudge render`: one scene, outside a manifest |
-//! | `bless.rs` | `hpjudge bless`: goldens rewritten on request |
 //! | `asserts.rs` | the closed set of assertions and their checks |
 //! | `ops/` | the table of operations cases name |
 //! | `worker.rs` | one case on one backend, in a child process |
+//! | `job.rs` | what the judge hands a worker (stdin), the child process, its deadline |
+//! | `outlock.rs` | the exclusive lock on a run's output folder |
 //! | `runner.rs` | the run: workers, time limits, scoreboard, summary |
 //! | `scoreboard.rs`, `junit.rs`, `artifacts.rs` | what a run writes |
 //! | `measure.rs` | wall and CPU seconds |
@@ -22,16 +23,19 @@
 
 pub mod artifacts;
 pub mod asserts;
-pub mod bless;
 pub mod env;
+#[cfg(test)]
+mod fuzz_tests;
+pub mod job;
 pub mod junit;
 pub mod load;
 pub mod manifest;
 pub mod measure;
 pub mod ops;
+pub mod outlock;
 pub mod perf;
-pub mod plot;
 pub mod perf_run;
+pub mod plot;
 pub mod render;
 pub mod runner;
 pub mod scoreboard;

@@ -63,7 +63,7 @@ struct ScenariosFile {
 }
 
 /// All scenarios, with the folder their scene paths are relative to.
-#[derive(Clone, Debug, Default)]
+#[derive(Clone, Debug, Default, Deserialize, Serialize)]
 pub struct PerfScenarios {
     pub path: PathBuf,
     pub scenarios: Vec<Scenario>,
@@ -103,7 +103,7 @@ impl PerfScenarios {
                     return Err(JudgeInputError::new(
                         &at,
                         &key("scene"),
-                        format!("{} does not exist", dir.join(sc).display()),
+                        super::manifest::not_a_file(&dir.join(sc)),
                     ));
                 }
             }
@@ -221,9 +221,23 @@ pub struct CompareRow {
     pub verdict: Change,
 }
 
+/// The relative change `(new - base) / |base|`, explicit at the edges: both
+/// zero is no change; a zero base with a non-zero new value is an infinite
+/// change in the direction of the new value.
+pub fn relative_change(base: f64, new: f64) -> f64 {
+    if base == new {
+        0.0
+    } else if base == 0.0 {
+        f64::INFINITY.copysign(new)
+    } else {
+        (new - base) / base.abs()
+    }
+}
+
 /// Compares two metric sets: a change is a regression (or improvement) only
 /// when it is worse (better) by more than `threshold` and by more than
-/// `noise_k` times the larger relative spread of the two.
+/// `noise_k` times the larger relative spread of the two. A non-finite new
+/// value is a regression; a non-finite base value is not judged.
 pub fn compare(
     base: &BTreeMap<String, MetricStats>,
     new: &BTreeMap<String, MetricStats>,
@@ -235,11 +249,7 @@ pub fn compare(
         let Some(n) = new.get(k) else { continue };
         let metric = k.rsplit('/').next().unwrap_or(k);
         let dir = direction(metric);
-        let change = if b.median != 0.0 {
-            (n.median - b.median) / b.median.abs()
-        } else {
-            0.0
-        };
+        let change = relative_change(b.median, n.median);
         let noise = b.spread_rel.max(n.spread_rel);
         let better = match dir {
             Direction::HigherIsBetter => change,
@@ -248,6 +258,10 @@ pub fn compare(
         };
         let past = |x: f64| x > threshold && x > noise_k * noise;
         let verdict = if dir == Direction::Neutral {
+            Change::NotJudged
+        } else if !n.median.is_finite() {
+            Change::Regression
+        } else if !b.median.is_finite() {
             Change::NotJudged
         } else if past(-better) {
             Change::Regression
@@ -270,26 +284,133 @@ pub fn compare(
     rows
 }
 
+/// Which file `compare` read.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum ReportKind {
+    Perf,
+    Scoreboard,
+}
+
+/// Metrics of a perf.json or scoreboard.json, with the ids it holds and
+/// those that errored.
+#[derive(Clone, Debug)]
+pub struct MetricsFile {
+    pub kind: ReportKind,
+    /// `scenario/metric` or `case/backend/metric`.
+    pub metrics: BTreeMap<String, MetricStats>,
+    /// Scenario ids or `case/backend`.
+    pub ids: std::collections::BTreeSet<String>,
+    /// Those of `ids` that errored or timed out, with why.
+    pub errored: BTreeMap<String, String>,
+}
+
+/// A row of `compare` about a scenario or case rather than a metric.
+#[derive(Clone, Debug, Serialize)]
+pub struct MissingRow {
+    pub id: String,
+    pub why: String,
+}
+
+/// Checks `--threshold` and `--noise-k`: finite and >= 0.
+pub fn validate_compare_args(threshold: f64, noise_k: f64) -> Result<(), JudgeInputError> {
+    for (k, v) in [("--threshold", threshold), ("--noise-k", noise_k)] {
+        if !(v.is_finite() && v >= 0.0) {
+            return Err(JudgeInputError::new(
+                k,
+                "",
+                format!("{v} is not a finite number >= 0"),
+            ));
+        }
+    }
+    Ok(())
+}
+
+/// Scenarios or cases of `base` that `new` lacks or that errored in `new`:
+/// each is a regression.
+pub fn missing_or_errored(base: &MetricsFile, new: &MetricsFile) -> Vec<MissingRow> {
+    let mut rows = Vec::new();
+    for id in &base.ids {
+        if !new.ids.contains(id) {
+            rows.push(MissingRow {
+                id: id.clone(),
+                why: "missing from the new file".into(),
+            });
+        } else if let Some(why) = new.errored.get(id) {
+            if !base.errored.contains_key(id) {
+                rows.push(MissingRow {
+                    id: id.clone(),
+                    why: format!("errored in the new file: {why}"),
+                });
+            }
+        }
+    }
+    rows
+}
+
+/// Reads both files of `compare`; refuses a mix of perf report and scoreboard.
+pub fn read_pair(base: &Path, new: &Path) -> Result<(MetricsFile, MetricsFile), JudgeInputError> {
+    let (b, n) = (read_metrics(base)?, read_metrics(new)?);
+    if b.kind != n.kind {
+        return Err(JudgeInputError::new(
+            &new.display().to_string(),
+            "",
+            format!(
+                "is a {:?} file but {} is a {:?} file: compare like with like",
+                n.kind,
+                base.display(),
+                b.kind
+            ),
+        ));
+    }
+    Ok((b, n))
+}
+
 /// Reads metrics from a perf.json (`scenario/metric`) or a scoreboard.json
-/// (`case/backend/metric`, one sample each).
-pub fn read_metrics(path: &Path) -> Result<BTreeMap<String, MetricStats>, JudgeInputError> {
+/// (`case/backend/metric`, one sample each); refuses unknown schema versions.
+pub fn read_metrics(path: &Path) -> Result<MetricsFile, JudgeInputError> {
     let at = path.display().to_string();
     let text = std::fs::read_to_string(path)
         .map_err(|e| JudgeInputError::new(&at, "", format!("cannot read: {e}")))?;
     let v: serde_json::Value = serde_json::from_str(&text).map_err(|e| {
         JudgeInputError::new(&at, "", format!("not JSON: {e}")).at_line(Some(e.line()))
     })?;
-    let mut out = BTreeMap::new();
+    let version = v.get("schema_version").and_then(|x| x.as_u64());
+    let mut f = MetricsFile {
+        kind: ReportKind::Perf,
+        metrics: BTreeMap::new(),
+        ids: Default::default(),
+        errored: BTreeMap::new(),
+    };
     if let Some(sc) = v.get("scenarios") {
+        if version != Some(1) {
+            return Err(JudgeInputError::new(
+                &at,
+                "schema_version",
+                format!("{version:?} is not a perf report version this hpjudge reads (1)"),
+            ));
+        }
         let r: Vec<ScenarioResult> = serde_json::from_value(sc.clone()).map_err(|e| {
             JudgeInputError::new(&at, "scenarios", format!("not a perf report: {e}"))
         })?;
         for s in r {
+            f.ids.insert(s.id.clone());
+            if let Some(e) = &s.error {
+                f.errored.insert(s.id.clone(), e.clone());
+            }
             for (m, st) in s.metrics {
-                out.insert(format!("{}/{m}", s.id), st);
+                f.metrics.insert(format!("{}/{m}", s.id), st);
             }
         }
     } else if let Some(cases) = v.get("cases").and_then(|c| c.as_array()) {
+        f.kind = ReportKind::Scoreboard;
+        let known = super::scoreboard::KNOWN_SCHEMA_VERSIONS;
+        if !version.is_some_and(|x| known.iter().any(|k| u64::from(*k) == x)) {
+            return Err(JudgeInputError::new(
+                &at,
+                "schema_version",
+                format!("{version:?} is not a scoreboard version this hpjudge reads ({known:?})"),
+            ));
+        }
         for c in cases {
             let id = c.get("id").and_then(|x| x.as_str()).unwrap_or("?");
             for r in c
@@ -299,6 +420,13 @@ pub fn read_metrics(path: &Path) -> Result<BTreeMap<String, MetricStats>, JudgeI
                 .flatten()
             {
                 let be = r.get("backend").and_then(|x| x.as_str()).unwrap_or("?");
+                let key = format!("{id}/{be}");
+                f.ids.insert(key.clone());
+                let verdict = r.get("verdict").and_then(|x| x.as_str()).unwrap_or("?");
+                if matches!(verdict, "ERROR" | "TIMEOUT") {
+                    let why = r.get("reason").and_then(|x| x.as_str()).unwrap_or("");
+                    f.errored.insert(key.clone(), format!("{verdict} {why}"));
+                }
                 for (m, x) in r
                     .get("metrics")
                     .and_then(|m| m.as_object())
@@ -306,7 +434,8 @@ pub fn read_metrics(path: &Path) -> Result<BTreeMap<String, MetricStats>, JudgeI
                     .flatten()
                 {
                     if let Some(x) = x.as_f64() {
-                        out.insert(format!("{id}/{be}/{m}"), MetricStats::of(vec![x]));
+                        f.metrics
+                            .insert(format!("{key}/{m}"), MetricStats::of(vec![x]));
                     }
                 }
             }
@@ -318,7 +447,7 @@ pub fn read_metrics(path: &Path) -> Result<BTreeMap<String, MetricStats>, JudgeI
             "neither a perf report (`scenarios`) nor a scoreboard (`cases`)",
         ));
     }
-    Ok(out)
+    Ok(f)
 }
 
 #[cfg(test)]
@@ -351,6 +480,26 @@ mod tests {
             compare(&base, &new, 0.1, 2.0)[0].verdict,
             Change::WithinNoise
         );
+    }
+
+    #[test]
+    fn zero_and_non_finite_values_are_judged_explicitly() {
+        assert_eq!(relative_change(0.0, 0.0), 0.0);
+        assert_eq!(relative_change(0.0, 2.0), f64::INFINITY);
+        let zero = BTreeMap::from([("s/time_s".to_string(), noisy(0.0, 0.0))]);
+        let slow = BTreeMap::from([("s/time_s".to_string(), noisy(1.0, 0.0))]);
+        assert_eq!(
+            compare(&zero, &slow, 0.1, 2.0)[0].verdict,
+            Change::Regression
+        );
+        let nan = BTreeMap::from([("s/time_s".to_string(), MetricStats::of(vec![f64::NAN]))]);
+        assert_eq!(
+            compare(&slow, &nan, 0.1, 2.0)[0].verdict,
+            Change::Regression
+        );
+        assert_eq!(compare(&nan, &slow, 0.1, 2.0)[0].verdict, Change::NotJudged);
+        assert!(validate_compare_args(f64::NAN, 2.0).is_err());
+        assert!(validate_compare_args(0.1, -1.0).is_err());
     }
 
     #[test]

@@ -4,9 +4,9 @@
 use std::path::{Path, PathBuf};
 
 use crate::judge::env;
+use crate::judge::job::{run_child, ChildEnd, Job, Task, DEADLINE_GRACE_S};
 use crate::judge::load::{load_yaml_typed, JudgeInputError};
 use crate::judge::perf::{PerfReport, PerfScenarios, Scenario, ScenarioResult};
-use crate::judge::runner::{self, ChildEnd};
 use crate::judge::thresholds::{pick_profile, Thresholds, ThresholdsFile};
 
 /// Why a perf run stopped (a scenario's own failure is in its result instead).
@@ -30,6 +30,7 @@ pub fn run_scenarios(
     filter: Option<&str>,
     threads: usize,
     seed: u32,
+    mem_limit: Option<u64>,
     mut each: impl FnMut(&ScenarioResult),
 ) -> Result<(PerfReport, PathBuf), PerfRunError> {
     let perf = PerfScenarios::load(scenarios)?;
@@ -52,28 +53,25 @@ pub fn run_scenarios(
     {
         let dir = out.join("perf").join(&s.id);
         std::fs::create_dir_all(&dir)?;
-        let args: Vec<String> = vec![
-            "--scenarios".into(),
-            scenarios.display().to_string(),
-            "--scenario".into(),
-            s.id.clone(),
-            "--thresholds".into(),
-            th_path.display().to_string(),
-            "--profile".into(),
-            profile.clone(),
-            "--out".into(),
-            out.display().to_string(),
-            "--threads".into(),
-            threads.to_string(),
-            "--seed".into(),
-            seed.to_string(),
-        ];
         let limit = th
             .timeout("perf")
             .or_else(|| th.timeout("default"))
             .unwrap_or(600.0);
-        let r = match runner::run_child(
-            &args,
+        let job = Job {
+            task: Task::Scenario { id: s.id.clone() },
+            thresholds: th.clone(),
+            perf: perf.clone(),
+            out: out.to_path_buf(),
+            goldens: root.join("GOLDENS"),
+            seed,
+            threads,
+            mem_limit,
+            dump: false,
+            bless: false,
+            deadline_s: limit + DEADLINE_GRACE_S,
+        };
+        let r = match run_child(
+            &job,
             limit,
             &dir.join("worker.log"),
             &dir.join("result.json"),

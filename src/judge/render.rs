@@ -33,7 +33,10 @@ pub fn render(req: &RenderRequest) -> Result<Outputs> {
     let op = ops::find(&name).ok_or_else(|| {
         Error::NotSupported(format!("renderer {renderer:?} has no `render` operation"))
     })?;
-    let rays_t = req.rays.map(Tensor::read_npy).transpose()?;
+    let rays_t = req
+        .rays
+        .map(|p| Tensor::read_npy_within(p, req.budget))
+        .transpose()?;
     let mut params = serde_yaml::Mapping::new();
     if let Some(g) = req.grad_from {
         params.insert("grad_from".into(), g.display().to_string().into());

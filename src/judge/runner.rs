@@ -2,22 +2,27 @@
 //! backend in a worker process (`hpjudge` re-executing itself), with a time
 //! limit, and writes the scoreboard atomically after every case.
 
-use std::collections::BTreeSet;
+use std::collections::{BTreeMap, BTreeSet};
 use std::io::IsTerminal;
+use std::io::Write;
 use std::path::{Path, PathBuf};
-use std::process::{Command, Stdio};
-use std::time::{Duration, Instant};
+use std::time::Instant;
 
 use super::env;
+use super::job::{run_child, ChildEnd, Job, Task, DEADLINE_GRACE_S};
 use super::junit::to_junit;
 use super::load::JudgeInputError;
+use super::manifest::not_a_file;
 use super::manifest::{LoadedCase, Manifest};
 use super::ops::BackendKind;
+use super::outlock::lock_out_dir;
 use super::perf::PerfScenarios;
+use super::scoreboard::InputHashes;
 use super::scoreboard::{BackendResult, CaseEntry, Scoreboard, Summary, Verdict, SCHEMA_VERSION};
 use super::thresholds::{pick_profile, Thresholds, ThresholdsFile};
-use super::worker::case_dir;
+use super::worker::{case_dir, sets_for, PERF_NOT_ENFORCED};
 use crate::scene::{self, SceneDoc};
+use sha2::{Digest, Sha256};
 
 /// Which backends a run covers.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
@@ -54,6 +59,8 @@ pub struct RunOptions {
     pub profile: Option<String>,
     pub thresholds: Option<PathBuf>,
     pub mem_limit: Option<u64>,
+    /// Workers write goldens instead of judging (`hpjudge bless`).
+    pub bless: bool,
 }
 
 /// The judge's inputs, loaded and cross-checked.
@@ -64,6 +71,8 @@ pub struct Inputs {
     /// Folder of thresholds.yaml: the project root (GOLDENS/ lives there).
     pub root: PathBuf,
     pub profile_reason: String,
+    /// SHA-256 of every scene file the cases name.
+    pub scenes: BTreeMap<PathBuf, String>,
 }
 
 /// Finds `name` in `start` or the nearest folder above it.
@@ -84,7 +93,7 @@ pub fn load_inputs(
 ) -> Result<Inputs, JudgeInputError> {
     let at = manifest.display().to_string();
     if !manifest.is_file() {
-        return Err(JudgeInputError::new(&at, "", "no such manifest file"));
+        return Err(JudgeInputError::new(&at, "", not_a_file(manifest)));
     }
     let mdir = manifest.parent().unwrap_or(Path::new("."));
     let mdir = if mdir.as_os_str().is_empty() {
@@ -125,24 +134,9 @@ pub fn load_inputs(
     };
     let m = Manifest::load(manifest)?;
     m.validate(&th, &perf)?;
+    let mut scenes = BTreeMap::new();
     for lc in &m.cases {
-        if let Some(s) = &lc.case.scene {
-            let sets: Vec<(String, serde_yaml::Value)> = lc
-                .case
-                .set
-                .iter()
-                .map(|(k, v)| (k.clone(), v.clone()))
-                .collect();
-            let doc = SceneDoc::load_values(&lc.dir().join(s), &sets)
-                .map_err(|e| JudgeInputError::new(&lc.at(), "scene", e.to_string()))?;
-            scene::validate(&doc).map_err(|e| {
-                JudgeInputError::new(
-                    &lc.at(),
-                    &format!("cases[{}].scene", lc.case.id),
-                    e.to_string(),
-                )
-            })?;
-        }
+        validate_scenes(lc, &mut scenes)?;
     }
     Ok(Inputs {
         manifest: m,
@@ -150,7 +144,71 @@ pub fn load_inputs(
         perf,
         root,
         profile_reason: reason,
+        scenes,
     })
+}
+
+/// Loads and validates every scene a case's runs use, as `run` would:
+/// with the case's `set:`, with its `ci:` overrides on top, and each ref's
+/// scene with its own `set:`. Records each scene file's SHA-256.
+fn validate_scenes(
+    lc: &LoadedCase,
+    hashes: &mut BTreeMap<PathBuf, String>,
+) -> Result<(), JudgeInputError> {
+    let c = &lc.case;
+    type Sets = BTreeMap<String, serde_yaml::Value>;
+    let mut runs: Vec<(String, Option<&String>, Option<&Sets>)> =
+        vec![(format!("cases[{}]", c.id), c.scene.as_ref(), None)];
+    for (name, r) in &c.refs {
+        runs.push((
+            format!("cases[{}].refs.{name}", c.id),
+            r.scene.as_ref().or(c.scene.as_ref()),
+            r.set.as_ref(),
+        ));
+    }
+    if !c.ci.is_empty() && runs.iter().all(|r| r.1.is_none()) {
+        return Err(JudgeInputError::new(
+            &lc.at(),
+            &format!("cases[{}].ci", c.id),
+            "`ci:` overrides scene keys, but the case has no scene",
+        ));
+    }
+    for (key, scene, extra) in runs {
+        let Some(s) = scene else { continue };
+        let path = lc.dir().join(s);
+        if !hashes.contains_key(&path) {
+            let bytes = std::fs::read(&path).map_err(|e| {
+                JudgeInputError::new(&lc.at(), &key, format!("{}: {e}", path.display()))
+            })?;
+            hashes.insert(path.clone(), format!("{:x}", Sha256::digest(&bytes)));
+        }
+        let profiles: &[Option<&Sets>] = if c.ci.is_empty() {
+            &[None]
+        } else {
+            &[None, Some(&c.ci)]
+        };
+        for ci in profiles {
+            let at_key = if ci.is_some() {
+                format!("{key}.ci")
+            } else {
+                format!("{key}.scene")
+            };
+            let doc = SceneDoc::load_values(&path, &sets_for(&c.set, *ci, extra))
+                .map_err(|e| JudgeInputError::new(&lc.at(), &at_key, e.to_string()))?;
+            scene::validate(&doc)
+                .map_err(|e| JudgeInputError::new(&lc.at(), &at_key, e.to_string()))?;
+        }
+    }
+    Ok(())
+}
+
+/// One SHA-256 over `(hash, path)` lines of files.
+fn combined_sha256(files: &BTreeMap<PathBuf, String>) -> String {
+    let mut h = Sha256::new();
+    for (p, s) in files {
+        h.update(format!("{s}  {}\n", p.display()).as_bytes());
+    }
+    format!("{:x}", h.finalize())
 }
 
 /// The GPU block of the environment, when the run has GPU cases.
@@ -169,112 +227,33 @@ pub fn show_progress(json: bool, ci_set: bool, stderr_is_terminal: bool) -> bool
     !json && !ci_set && stderr_is_terminal
 }
 
-/// The command that reruns one case on one backend.
-pub fn repro(opts: &RunOptions, profile: &str, id: &str, b: BackendKind) -> String {
-    format!(
-        "hpjudge run {} --filter {id} --backend {} --profile {profile} --seed {} --dump-failing",
-        opts.manifest.display(),
-        b.name(),
-        opts.seed
-    )
-}
-
-/// What a dead worker's log says: its panic message when it panicked (the
-/// `panicked at` line and the message after it), else its last lines.
-fn tail(path: &Path, lines: usize) -> String {
-    let s = std::fs::read_to_string(path).unwrap_or_default();
-    let v: Vec<&str> = s.lines().collect();
-    if let Some(i) = v.iter().position(|l| l.contains("panicked at")) {
-        return v[i..(i + 2).min(v.len())].join("\n");
-    }
-    v[v.len().saturating_sub(lines)..].join("\n")
-}
-
-#[cfg(unix)]
-fn describe_status(s: std::process::ExitStatus) -> String {
-    use std::os::unix::process::ExitStatusExt;
-    match (s.code(), s.signal()) {
-        (Some(101), _) => "panicked (exit 101)".into(),
-        (Some(c), _) => format!("exited with status {c}"),
-        (None, Some(6)) => "aborted (SIGABRT)".into(),
-        (None, Some(11)) => "crashed (SIGSEGV)".into(),
-        (None, Some(sig)) => format!("killed by signal {sig}"),
-        _ => "ended abnormally".into(),
-    }
-}
-
-#[cfg(not(unix))]
-fn describe_status(s: std::process::ExitStatus) -> String {
-    format!("exited with {s}")
-}
-
-/// How a child worker ended.
-pub enum ChildEnd {
-    /// Exited 0 and wrote its result file (its text).
-    Done(String),
-    /// Killed at the time limit.
-    TimedOut,
-    /// Anything else, described.
-    Failed(String),
-}
-
-/// Runs `hpjudge worker ARGS --result FILE` with stderr to `log`, killing it
-/// after `limit` seconds.
-pub fn run_child(args: &[String], limit: f64, log_path: &Path, result_path: &Path) -> ChildEnd {
-    let _ = std::fs::remove_file(result_path);
-    // /proc/self/exe stays valid when the binary is rebuilt during a run.
-    let proc_exe = Path::new("/proc/self/exe");
-    let exe = if proc_exe.exists() {
-        proc_exe.to_path_buf()
+/// Quotes `s` for a POSIX shell when it holds anything but `[A-Za-z0-9_./=:,+-]`.
+pub fn shell_quote(s: &str) -> String {
+    let plain = !s.is_empty()
+        && s.chars()
+            .all(|c| c.is_ascii_alphanumeric() || "_./=:,+-".contains(c));
+    if plain {
+        s.to_string()
     } else {
-        match std::env::current_exe() {
-            Ok(e) => e,
-            Err(e) => return ChildEnd::Failed(format!("cannot find the hpjudge executable: {e}")),
-        }
-    };
-    let log = match std::fs::File::create(log_path) {
-        Ok(f) => f,
-        Err(e) => return ChildEnd::Failed(format!("cannot create {}: {e}", log_path.display())),
-    };
-    let mut cmd = Command::new(exe);
-    cmd.arg("worker")
-        .args(args)
-        .arg("--result")
-        .arg(result_path)
-        .stdin(Stdio::null())
-        .stdout(Stdio::null())
-        .stderr(log);
-    let started = Instant::now();
-    let mut child = match cmd.spawn() {
-        Ok(c) => c,
-        Err(e) => return ChildEnd::Failed(format!("cannot start a worker: {e}")),
-    };
-    let status = loop {
-        match child.try_wait() {
-            Ok(Some(s)) => break s,
-            Ok(None) if started.elapsed().as_secs_f64() > limit => {
-                let _ = child.kill();
-                let _ = child.wait();
-                return ChildEnd::TimedOut;
-            }
-            Ok(None) => std::thread::sleep(Duration::from_millis(10)),
-            Err(e) => return ChildEnd::Failed(format!("lost the worker: {e}")),
-        }
-    };
-    match (status.success(), std::fs::read_to_string(result_path)) {
-        (true, Ok(text)) => ChildEnd::Done(text),
-        (ok, _) => {
-            let why = if ok {
-                "wrote no result".to_string()
-            } else {
-                describe_status(status)
-            };
-            ChildEnd::Failed(format!(
-                "worker {why}: {}",
-                tail(log_path, 6).replace('\n', " | ")
-            ))
-        }
+        format!("'{}'", s.replace('\'', r"'\''"))
     }
+}
+
+/// The command that reruns one case on one backend, shell-quoted, writing
+/// to its own output folder (`<out>/repro/<case>-<backend>`), never over the
+/// suite's scoreboard. Values go as `--key=value`, safe when they start with `-`.
+pub fn repro(opts: &RunOptions, profile: &str, id: &str, b: BackendKind) -> String {
+    let out = opts.out.join("repro").join(format!("{id}-{}", b.name()));
+    let q = |p: &Path| shell_quote(&p.display().to_string());
+    format!(
+        "hpjudge run {} --filter={} --backend={} --profile={} --seed={} --out={} --dump-failing",
+        q(&opts.manifest),
+        shell_quote(id),
+        b.name(),
+        shell_quote(profile),
+        opts.seed,
+        q(&out)
+    )
 }
 
 /// Runs one case on one backend in a worker process.
@@ -306,33 +285,25 @@ fn spawn_worker(
             0.0,
         );
     }
-    let mut args: Vec<String> = vec![
-        "--manifest".into(),
-        inputs.manifest.path.display().to_string(),
-        "--case".into(),
-        lc.case.id.clone(),
-        "--backend".into(),
-        b.name().into(),
-        "--out".into(),
-        opts.out.display().to_string(),
-        "--thresholds".into(),
-        inputs.thresholds.path.display().to_string(),
-        "--profile".into(),
-        inputs.thresholds.profile_name.clone(),
-        "--seed".into(),
-        opts.seed.to_string(),
-        "--threads".into(),
-        opts.threads.to_string(),
-    ];
-    if let Some(m) = opts.mem_limit {
-        args.extend(["--mem-limit".into(), m.to_string()]);
-    }
-    if dump {
-        args.push("--dump".into());
-    }
     let limit = inputs.thresholds.timeout(&lc.case.timeout).unwrap_or(120.0);
+    let job = Job {
+        task: Task::Case {
+            case: Box::new(lc.clone()),
+            backend: b,
+        },
+        thresholds: inputs.thresholds.clone(),
+        perf: inputs.perf.clone(),
+        out: opts.out.clone(),
+        goldens: inputs.root.join("GOLDENS"),
+        seed: opts.seed,
+        threads: opts.threads,
+        mem_limit: opts.mem_limit,
+        dump,
+        bless: opts.bless,
+        deadline_s: limit + DEADLINE_GRACE_S,
+    };
     let end = run_child(
-        &args,
+        &job,
         limit,
         &dir.join("worker.log"),
         &dir.join("result.json"),
@@ -362,8 +333,40 @@ fn spawn_worker(
     }
 }
 
-/// `hpjudge run`: the whole suite. Returns the finished scoreboard.
+/// Most `--threads` accepted: more only costs time spawning them.
+pub const MAX_THREADS: usize = 1024;
+
+/// Parses `--threads` (0 = one per logical CPU, at most [`MAX_THREADS`]).
+pub fn parse_threads(s: &str) -> Result<usize, String> {
+    let n: usize = s
+        .trim()
+        .parse()
+        .map_err(|_| format!("{s:?} is not a thread count"))?;
+    if n > MAX_THREADS {
+        return Err(format!(
+            "{n} threads is over the limit of {MAX_THREADS} (0 = one per logical CPU)"
+        ));
+    }
+    Ok(n)
+}
+
+/// Writes one line to stdout; false once stdout is closed (a reader such as
+/// `head` went away), so the run can stop quietly.
+pub fn emit(line: &str) -> bool {
+    let mut o = std::io::stdout().lock();
+    writeln!(o, "{line}").and_then(|_| o.flush()).is_ok()
+}
+
+/// `hpjudge run`: the whole suite. Returns the finished scoreboard, whose
+/// `complete` is false when the run stopped early (stdout closed).
 pub fn run(opts: &RunOptions) -> Result<Scoreboard, JudgeInputError> {
+    if opts.threads > MAX_THREADS {
+        return Err(JudgeInputError::new(
+            "--threads",
+            "",
+            format!("{} is over the limit of {MAX_THREADS}", opts.threads),
+        ));
+    }
     let inputs = load_inputs(
         &opts.manifest,
         opts.thresholds.as_deref(),
@@ -384,32 +387,21 @@ pub fn run(opts: &RunOptions) -> Result<Scoreboard, JudgeInputError> {
         th.profile_name, inputs.profile_reason
     );
     let out = &opts.out;
-    std::fs::create_dir_all(out).map_err(|e| {
-        JudgeInputError::new(
-            &out.display().to_string(),
+    let out_at = out.display().to_string();
+    if out.exists() && !out.is_dir() {
+        return Err(JudgeInputError::new(
+            &out_at,
             "",
-            format!("cannot create: {e}"),
-        )
-    })?;
+            "exists and is not a directory",
+        ));
+    }
+    std::fs::create_dir_all(out)
+        .map_err(|e| JudgeInputError::new(&out_at, "", format!("cannot create: {e}")))?;
+    let _lock = lock_out_dir(out, &format!("run {}", opts.manifest.display()))?;
     let threads = if opts.threads > 0 {
         opts.threads
     } else {
         env::logical_cpus()
-    };
-    let mut board = Scoreboard {
-        schema_version: SCHEMA_VERSION,
-        hpjudge_version: env::VERSION.to_string(),
-        manifest: opts.manifest.display().to_string(),
-        environment: env::describe(
-            threads,
-            opts.seed,
-            &th.profile_name,
-            size,
-            &th.sha256,
-            gpu_env(&inputs, opts),
-        ),
-        summary: Summary::default(),
-        cases: vec![],
     };
     let selected: Vec<&LoadedCase> = inputs
         .manifest
@@ -420,6 +412,7 @@ pub fn run(opts: &RunOptions) -> Result<Scoreboard, JudgeInputError> {
                 .as_ref()
                 .is_none_or(|f| c.case.id.contains(f.as_str()))
         })
+        .filter(|c| !opts.bless || c.case.asserts.iter().any(|a| !a.goldens().is_empty()))
         .collect();
     let total: u64 = selected
         .iter()
@@ -431,6 +424,32 @@ pub fn run(opts: &RunOptions) -> Result<Scoreboard, JudgeInputError> {
                 .count() as u64
         })
         .sum();
+    let mut board = Scoreboard {
+        schema_version: SCHEMA_VERSION,
+        hpjudge_version: env::VERSION.to_string(),
+        manifest: opts.manifest.display().to_string(),
+        complete: false,
+        cases_total: total,
+        cases_done: 0,
+        stopped: None,
+        inputs: InputHashes {
+            manifest_tree_sha256: inputs.manifest.tree_sha256.clone(),
+            thresholds_sha256: th.sha256.clone(),
+            scenes_sha256: combined_sha256(&inputs.scenes),
+            manifest_files: inputs.manifest.files,
+            scene_files: inputs.scenes.len(),
+        },
+        environment: env::describe(
+            threads,
+            opts.seed,
+            &th.profile_name,
+            size,
+            &th.sha256,
+            gpu_env(&inputs, opts),
+        ),
+        summary: Summary::default(),
+        cases: vec![],
+    };
     let bar = if show_progress(
         opts.json,
         std::env::var_os("CI").is_some(),
@@ -441,6 +460,7 @@ pub fn run(opts: &RunOptions) -> Result<Scoreboard, JudgeInputError> {
         indicatif::ProgressBar::hidden()
     };
     let board_path = out.join("scoreboard.json");
+    save(&mut board, &board_path)?;
     let mut seen_backends = BTreeSet::new();
     for lc in selected {
         let c = &lc.case;
@@ -460,31 +480,38 @@ pub fn run(opts: &RunOptions) -> Result<Scoreboard, JudgeInputError> {
                 && b == BackendKind::Gpu
                 && r.verdict == Verdict::Skip
                 && !r.reason.starts_with("size full")
+                && !r.reason.starts_with(PERF_NOT_ENFORCED)
             {
                 r.verdict = Verdict::Fail;
                 r.reason = format!("--require-gpu: {}", r.reason);
             }
             let bad = matches!(r.verdict, Verdict::Fail | Verdict::Error | Verdict::Timeout);
             let unexpected = c.expect.is_some_and(|e| !r.verdict.matches(e));
-            if (bad && c.expect.is_none()) || unexpected {
+            if !opts.bless && ((bad && c.expect.is_none()) || unexpected) {
                 r.repro = repro(opts, &th.profile_name, &c.id, b);
                 if opts.dump_failing && r.verdict != Verdict::Timeout {
                     let d = spawn_worker(&inputs, opts, lc, b, true);
                     r.artifacts = d.artifacts;
                 }
             }
-            if !opts.json {
-                bar.suspend(|| print_row(&entry, &r));
-            }
+            let printed = opts.json || bar.suspend(|| print_row(&entry, &r));
             entry.results.push(r);
             bar.inc(1);
+            if !printed {
+                board.stopped = Some("stdout was closed (EPIPE); the run stopped".into());
+                break;
+            }
         }
         if !entry.results.is_empty() {
             board.cases.push(entry);
         }
         save(&mut board, &board_path)?;
+        if board.stopped.is_some() {
+            break;
+        }
     }
     bar.finish_and_clear();
+    board.complete = board.stopped.is_none();
     save(&mut board, &board_path)?;
     if let Some(j) = &opts.junit {
         std::fs::write(j, to_junit(&board)).map_err(|e| {
@@ -506,7 +533,8 @@ fn save(board: &mut Scoreboard, path: &Path) -> Result<(), JudgeInputError> {
     })
 }
 
-fn print_row(entry: &CaseEntry, r: &BackendResult) {
+/// Prints one result row; false when stdout is closed.
+fn print_row(entry: &CaseEntry, r: &BackendResult) -> bool {
     let note = if !r.reason.is_empty() {
         r.reason.clone()
     } else if let Some(k) = r.checks.iter().find(|k| !k.passed) {
@@ -520,38 +548,91 @@ fn print_row(entry: &CaseEntry, r: &BackendResult) {
         None => String::new(),
     };
     let note: String = note.chars().take(160).collect();
-    println!(
+    emit(&format!(
         "{:<7} {:<44} {:<4} {:>7.2}s{exp}  {note}",
         r.verdict.name(),
         entry.id,
         r.backend.name(),
         r.wall_s
-    );
+    ))
 }
 
-/// Prints the closing part of a human run: repro lines, then the summary.
+/// Prints the closing part of a human run: repro lines, then the summary
+/// (and that the run is incomplete, when it is). Quiet once stdout is closed.
 pub fn print_summary(board: &Scoreboard, out: &Path) {
-    let mut repros = Vec::new();
-    for c in &board.cases {
-        for r in &c.results {
-            if !r.repro.is_empty() {
-                repros.push(format!("  {}", r.repro));
-            }
-        }
-    }
+    let mut lines = Vec::new();
+    let repros: Vec<String> = board
+        .cases
+        .iter()
+        .flat_map(|c| c.results.iter())
+        .filter(|r| !r.repro.is_empty())
+        .map(|r| format!("  {}", r.repro))
+        .collect();
     if !repros.is_empty() {
-        println!("\nrepro:");
-        for r in repros {
-            println!("{r}");
+        lines.push("\nrepro:".to_string());
+        lines.extend(repros);
+    }
+    lines.push(format!(
+        "\nscoreboard: {}",
+        out.join("scoreboard.json").display()
+    ));
+    if !board.complete {
+        lines.push(format!(
+            "INCOMPLETE: {} of {} results ({})",
+            board.cases_done,
+            board.cases_total,
+            board.stopped.as_deref().unwrap_or("stopped early")
+        ));
+    }
+    lines.push(board.summary.line());
+    for l in lines {
+        if !emit(&l) {
+            return;
         }
     }
-    println!("\nscoreboard: {}", out.join("scoreboard.json").display());
-    println!("{}", board.summary.line());
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn repro_commands_quote_and_use_their_own_out_folder() {
+        assert_eq!(shell_quote("a_b-1.x"), "a_b-1.x");
+        assert_eq!(shell_quote("it's here"), r"'it'\''s here'");
+        assert_eq!(shell_quote(""), "''");
+        let opts = RunOptions {
+            manifest: PathBuf::from("my tests/m.yaml"),
+            out: PathBuf::from("out"),
+            filter: None,
+            backend: BackendFilter::All,
+            threads: 0,
+            seed: 3,
+            json: false,
+            junit: None,
+            dump_failing: false,
+            require_gpu: false,
+            profile: None,
+            thresholds: None,
+            mem_limit: None,
+            bless: false,
+        };
+        let r = repro(&opts, "ci", "-odd", BackendKind::Gpu);
+        assert_eq!(
+            r,
+            "hpjudge run 'my tests/m.yaml' --filter=-odd --backend=gpu --profile=ci --seed=3 --out=out/repro/-odd-gpu --dump-failing"
+        );
+    }
+
+    #[test]
+    fn thread_counts_over_the_limit_are_refused() {
+        assert_eq!(parse_threads("0"), Ok(0));
+        assert_eq!(parse_threads("1024"), Ok(1024));
+        assert!(parse_threads("100000")
+            .unwrap_err()
+            .contains("over the limit"));
+        assert!(parse_threads("-1").is_err());
+    }
 
     #[test]
     fn progress_only_on_a_terminal_without_json_or_ci() {

@@ -13,8 +13,24 @@ use super::manifest::Expect;
 use super::ops::BackendKind;
 use crate::tensor::TensorInfo;
 
-/// The scoreboard's schema version.
-pub const SCHEMA_VERSION: u32 = 1;
+/// The scoreboard's schema version (2: `complete`, `cases_total`,
+/// `cases_done`, `stopped`, `inputs`).
+pub const SCHEMA_VERSION: u32 = 2;
+
+/// Scoreboard schema versions `compare` reads.
+pub const KNOWN_SCHEMA_VERSIONS: [u32; 2] = [1, 2];
+
+/// SHA-256 of what decided the verdicts.
+#[derive(Clone, Debug, Default, Deserialize, Serialize, PartialEq, Eq)]
+pub struct InputHashes {
+    /// Over every manifest file of the include tree (path and content, in load order).
+    pub manifest_tree_sha256: String,
+    pub thresholds_sha256: String,
+    /// Over every scene file the selected cases name (path and content, sorted by path).
+    pub scenes_sha256: String,
+    pub manifest_files: usize,
+    pub scene_files: usize,
+}
 
 /// What happened to one case on one backend. A judge bug is never a FAIL.
 #[derive(Clone, Copy, Debug, Deserialize, Serialize, PartialEq, Eq, PartialOrd, Ord)]
@@ -151,6 +167,21 @@ pub struct Scoreboard {
     pub schema_version: u32,
     pub hpjudge_version: String,
     pub manifest: String,
+    /// True only once every selected (case, backend) has a result; a run
+    /// stopped by a closed stdout, a signal or kill -9 leaves `false`.
+    #[serde(default)]
+    pub complete: bool,
+    /// (case, backend) results the run selected.
+    #[serde(default)]
+    pub cases_total: u64,
+    /// (case, backend) results written so far.
+    #[serde(default)]
+    pub cases_done: u64,
+    /// Why the run stopped before the end, when it did.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub stopped: Option<String>,
+    #[serde(default)]
+    pub inputs: InputHashes,
     pub environment: serde_json::Value,
     pub summary: Summary,
     pub cases: Vec<CaseEntry>,
@@ -161,12 +192,20 @@ impl Scoreboard {
     pub fn finish(&mut self) {
         self.cases.sort_by(|a, b| a.id.cmp(&b.id));
         let mut s = Summary::default();
+        let mut done = 0;
         for c in &self.cases {
             for r in &c.results {
                 s.add(r.verdict, c.expect);
+                done += 1;
             }
         }
         self.summary = s;
+        self.cases_done = done;
+    }
+
+    /// Whether the run is complete and nothing failed, errored or timed out.
+    pub fn all_good(&self) -> bool {
+        self.complete && self.summary.all_good()
     }
 
     /// Writes the board atomically: a temp file beside it, then rename.

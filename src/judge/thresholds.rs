@@ -94,7 +94,7 @@ pub struct ThresholdsFile {
 }
 
 /// Thresholds with one profile applied.
-#[derive(Clone, Debug)]
+#[derive(Clone, Debug, Deserialize, Serialize)]
 pub struct Thresholds {
     pub path: PathBuf,
     pub sha256: String,
@@ -115,6 +115,9 @@ impl Thresholds {
                 format!("{} is not 1", file.schema_version),
             ));
         }
+        validate_values(&file).map_err(|(key, what)| {
+            JudgeInputError::new(&at, &key, what).at_line(line_of(&text, &key))
+        })?;
         let p = file.profiles.get(profile).cloned().ok_or_else(|| {
             let known: Vec<&String> = file.profiles.keys().collect();
             JudgeInputError::new(
@@ -183,6 +186,84 @@ impl Thresholds {
     }
 }
 
+/// Checks every number of the file: tolerances finite and >= 0; gates
+/// finite; time limits and scales finite and > 0. Returns the key path and
+/// what is wrong.
+pub fn validate_values(f: &ThresholdsFile) -> Result<(), (String, String)> {
+    let tol_ok = |key: &str, t: &Tol| -> Result<(), (String, String)> {
+        for (k, v) in [
+            ("atol", t.atol),
+            ("rtol", t.rtol),
+            ("floor", t.floor),
+            ("floor_rel", t.floor_rel),
+        ] {
+            if !(v.is_finite() && v >= 0.0) {
+                return Err((
+                    format!("{key}.{k}"),
+                    format!("{v} is not a finite number >= 0"),
+                ));
+            }
+        }
+        Ok(())
+    };
+    let gate_ok = |key: &str, g: f64| {
+        if g.is_finite() {
+            Ok(())
+        } else {
+            Err((key.to_string(), format!("{g} is not a finite number")))
+        }
+    };
+    let positive = |key: &str, x: f64| {
+        if x.is_finite() && x > 0.0 {
+            Ok(())
+        } else {
+            Err((key.to_string(), format!("{x} is not a finite number > 0")))
+        }
+    };
+    for (k, t) in &f.tolerances {
+        tol_ok(&format!("tolerances.{k}"), t)?;
+    }
+    for (k, g) in &f.gates {
+        gate_ok(&format!("gates.{k}"), *g)?;
+    }
+    for (k, s) in &f.timeouts {
+        positive(&format!("timeouts.{k}"), *s)?;
+    }
+    for (name, p) in &f.profiles {
+        positive(&format!("profiles.{name}.timeout_scale"), p.timeout_scale)?;
+        for (k, t) in &p.tolerances {
+            tol_ok(&format!("profiles.{name}.tolerances.{k}"), t)?;
+        }
+        for (k, g) in &p.gates {
+            gate_ok(&format!("profiles.{name}.gates.{k}"), *g)?;
+        }
+    }
+    Ok(())
+}
+
+/// The line of the last segment of a dotted key path (`tolerances.x.atol`
+/// -> the first line naming `x:` after `tolerances:`), best effort.
+fn line_of(text: &str, key: &str) -> Option<usize> {
+    let mut from = 0usize;
+    let mut line = None;
+    for seg in key.split('.') {
+        let pat = format!("{seg}:");
+        let i = text
+            .lines()
+            .enumerate()
+            .skip(from)
+            .find(|(_, l)| {
+                l.trim_start().starts_with(&pat)
+                    || l.contains(&format!(" {pat}"))
+                    || l.contains(&format!("{{{pat}"))
+            })
+            .map(|(i, _)| i)?;
+        from = i;
+        line = Some(i + 1);
+    }
+    line
+}
+
 /// Picks the profile when `--profile` is not given: `ci` when the `CI`
 /// environment variable is set, else the profile whose `match_gpu` is in the
 /// GPU adapter name, else `default`. Returns the name and why.
@@ -203,6 +284,47 @@ pub fn pick_profile(file: &ThresholdsFile, ci: bool, gpu_name: Option<&str>) -> 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    fn file(text: &str) -> ThresholdsFile {
+        serde_yaml::from_str(text).unwrap()
+    }
+
+    #[test]
+    fn infinite_negative_and_nan_values_are_refused_with_their_key() {
+        let base = "schema_version: 1\ntimeouts: {default: 10}\n";
+        for (extra, key) in [
+            ("tolerances: {t: {atol: .inf}}", "tolerances.t.atol"),
+            ("tolerances: {t: {rtol: -1}}", "tolerances.t.rtol"),
+            ("tolerances: {t: {floor: .nan}}", "tolerances.t.floor"),
+            ("gates: {g: .nan}", "gates.g"),
+            (
+                "profiles: {p: {timeout_scale: 0}}",
+                "profiles.p.timeout_scale",
+            ),
+            (
+                "profiles: {p: {tolerances: {t: {atol: .inf}}}}",
+                "profiles.p.tolerances.t.atol",
+            ),
+        ] {
+            let f = file(&format!("{base}{extra}\n"));
+            assert_eq!(validate_values(&f).unwrap_err().0, key, "{extra}");
+        }
+        let f = file("schema_version: 1\ntimeouts: {default: .nan}\n");
+        assert_eq!(validate_values(&f).unwrap_err().0, "timeouts.default");
+        let f = file("schema_version: 1\ntimeouts: {default: -3}\n");
+        assert_eq!(validate_values(&f).unwrap_err().0, "timeouts.default");
+        let f = file(&format!(
+            "{base}tolerances: {{t: {{atol: 0.5}}}}\ngates: {{g: -2}}\n"
+        ));
+        assert!(validate_values(&f).is_ok());
+    }
+
+    #[test]
+    fn the_committed_thresholds_file_is_valid() {
+        let p = Path::new(env!("CARGO_MANIFEST_DIR")).join("thresholds.yaml");
+        let (f, _): (ThresholdsFile, String) = load_yaml_typed(&p).unwrap();
+        assert_eq!(validate_values(&f), Ok(()));
+    }
 
     #[test]
     fn tolerance_handles_nan_and_infinity_first() {

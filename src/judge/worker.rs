@@ -10,7 +10,8 @@ use serde_yaml::Value;
 
 use super::artifacts::write_tensor;
 use super::asserts::Evidence;
-use super::manifest::{CaseSize, LoadedCase, Manifest};
+use super::job::{read_job, start_deadline, Task};
+use super::manifest::{CaseSize, LoadedCase};
 use super::ops::{self, BackendKind, OpCtx, OpEntry};
 use super::perf::{MetricStats, PerfScenarios, Scenario, ScenarioResult};
 use super::scoreboard::{BackendResult, Verdict};
@@ -21,6 +22,10 @@ use crate::parallel::with_threads;
 use crate::real::Precision;
 use crate::scene::SceneDoc;
 use crate::tensor::{Outputs, Tensor, TensorInfo};
+
+/// How the reason of a case whose only checks are perf gates outside a perf
+/// profile starts (a SKIP that `--require-gpu` leaves alone).
+pub const PERF_NOT_ENFORCED: &str = "perf gates not enforced in profile";
 
 /// What the worker needs besides the case.
 pub struct WorkerEnv<'a> {
@@ -47,7 +52,9 @@ struct RunSpec {
     threads: usize,
 }
 
-fn sets_for(
+/// The scene overrides of one run: the case's `set:`, then its `ci:`
+/// overrides (ci size profile), then a ref's own `set:`.
+pub fn sets_for(
     case_set: &BTreeMap<String, Value>,
     ci: Option<&BTreeMap<String, Value>>,
     extra: Option<&BTreeMap<String, Value>>,
@@ -284,6 +291,23 @@ pub fn run_case(lc: &LoadedCase, backend: BackendKind, env: &WorkerEnv) -> Backe
             Err(e) => return errored(res, format!("assert[{i}] ({}): {e}", a.kind())),
         }
     }
+    let unenforced: Vec<String> = res
+        .checks
+        .iter()
+        .filter(|k| !k.enforced)
+        .map(|k| k.message.clone())
+        .collect();
+    if res.verdict == Verdict::Pass
+        && !unenforced.is_empty()
+        && unenforced.len() == res.checks.len()
+    {
+        res.verdict = Verdict::Skip;
+        res.reason = format!(
+            "{PERF_NOT_ENFORCED} {}: {}",
+            env.thresholds.profile_name,
+            unenforced.join("; ")
+        );
+    }
     let keep_refs = env.dump || res.verdict != Verdict::Pass;
     for (name, t) in &tensors {
         if name.contains('.') && !keep_refs {
@@ -378,12 +402,41 @@ pub fn run_scenario(s: &Scenario, perf: &PerfScenarios, env: &WorkerEnv) -> Scen
     r
 }
 
-/// Loads the manifest and finds a case (worker side).
-pub fn find_case(manifest: &Path, id: &str) -> Result<LoadedCase, String> {
-    let m = Manifest::load(manifest).map_err(|e| e.to_string())?;
-    m.find(id)
-        .cloned()
-        .ok_or_else(|| format!("no case {id:?} in {}", manifest.display()))
+/// `hpjudge worker`: reads the job on stdin, ends itself at the job's
+/// deadline, runs the case or scenario and writes the result to `result`.
+pub fn serve(result: &Path) -> Result<(), String> {
+    let job = read_job(std::io::stdin().lock())?;
+    start_deadline(job.deadline_s);
+    if job.threads > 0 {
+        // Only fails if a pool exists already, which then keeps its size.
+        let _ = rayon::ThreadPoolBuilder::new()
+            .num_threads(job.threads)
+            .build_global();
+    }
+    let wenv = WorkerEnv {
+        thresholds: &job.thresholds,
+        perf: &job.perf,
+        out: &job.out,
+        goldens: &job.goldens,
+        seed: job.seed,
+        budget: job
+            .mem_limit
+            .map_or_else(MemBudget::from_machine, MemBudget::fixed),
+        dump: job.dump,
+        bless: job.bless,
+    };
+    let text = match &job.task {
+        Task::Case { case, backend } => serde_json::to_string(&run_case(case, *backend, &wenv)),
+        Task::Scenario { id } => {
+            let s = job
+                .perf
+                .find(id)
+                .ok_or_else(|| format!("no perf scenario {id:?}"))?;
+            serde_json::to_string(&run_scenario(s, &job.perf, &wenv))
+        }
+    }
+    .map_err(|e| format!("cannot serialise the result: {e}"))?;
+    std::fs::write(result, text).map_err(|e| format!("writing {}: {e}", result.display()))
 }
 
 /// The output folder of a case on a backend.

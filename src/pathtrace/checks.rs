@@ -98,7 +98,10 @@ impl BsdfChecks {
         let mut out = Outputs::default();
         out.tensor("pdf_integral", Tensor::real(&rows, self.pdf_integral)?);
         out.tensor("albedo", Tensor::real(&rows, self.albedo)?);
-        out.tensor("reciprocity_err", Tensor::real(&rows, self.reciprocity_err)?);
+        out.tensor(
+            "reciprocity_err",
+            Tensor::real(&rows, self.reciprocity_err)?,
+        );
         out.tensor("weight_err", Tensor::real(&rows, self.weight_err)?);
         out.tensor("fresnel_err", Tensor::scalar(self.fresnel_err));
         out.tensor("chi2_p", Tensor::real(&[k], self.chi2_p)?);
@@ -187,19 +190,13 @@ pub fn bsdf_checks(thetas: &[f64], n: u32, alpha: f64, rough: f32, seed: u32) ->
             let f_ref = fresnel_angles(th.to_radians(), n1, n2);
             let mut refl = 0u64;
             for i in 0..n {
-                if let Some(s) =
-                    glass.sample(wo, rand_f32(seed ^ seed_row, i, 0, 0), [0.5, 0.5])
-                {
+                if let Some(s) = glass.sample(wo, rand_f32(seed ^ seed_row, i, 0, 0), [0.5, 0.5]) {
                     if s.wi.z * wo.z > 0.0 {
                         refl += 1;
                     }
                 }
             }
-            let f_code = fresnel_dielectric(
-                wo.z.abs(),
-                if side > 0.0 { 1.5 } else { 1.0 / 1.5 },
-            )
-            .0;
+            let f_code = fresnel_dielectric(wo.z.abs(), if side > 0.0 { 1.5 } else { 1.0 / 1.5 }).0;
             fres_err = fres_err.max((f_code as f64 - f_ref).abs());
             let e = [f_ref * n as f64, (1.0 - f_ref) * n as f64];
             let o = [refl as f64, (n as u64 - refl) as f64];
@@ -244,7 +241,12 @@ pub struct Region {
 
 /// Sum of the pixel colours of `rgb` whose first hit (`hits`, from
 /// `first_hits`) lies on shape `k` within `r` of its centre; the pixel count.
-pub fn region_sum(rgb: &[[f32; 3]], hits: &[(i32, [f32; 3])], k: usize, r: &Region) -> ([f64; 3], u64) {
+pub fn region_sum(
+    rgb: &[[f32; 3]],
+    hits: &[(i32, [f32; 3])],
+    k: usize,
+    r: &Region,
+) -> ([f64; 3], u64) {
     let c = Vec3A::from_array(r.center);
     let (mut sum, mut count) = ([0.0f64; 3], 0u64);
     for (i, &(idx, p)) in hits.iter().enumerate() {

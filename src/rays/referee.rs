@@ -123,12 +123,7 @@ pub fn clip_reference(cam: &Camera, gen: &RayGen) -> ClipReference {
         let (a, b, h) = faces_clip(o, d, &gen.aabb, gen.near, gen.far);
         (t0[i], t1[i], hit[i], ds[i]) = (a, b, h as u8, d);
     }
-    ClipReference {
-        t0,
-        t1,
-        hit,
-        d: ds,
-    }
+    ClipReference { t0, t1, hit, d: ds }
 }
 
 /// Reference clip of listed rays `[ox, oy, oz, dx, dy, dz]`: `(t0, t1, hit)`.

@@ -12,6 +12,7 @@ pub mod transport;
 pub mod volume;
 pub mod volume_hash;
 pub mod voxels;
+pub mod yaml_depth;
 
 use std::path::{Path, PathBuf};
 
@@ -51,7 +52,19 @@ pub fn read_yaml(path: &Path) -> Result<Value> {
 
 /// Parses YAML text (see [`read_yaml`]); `at` names the source.
 pub fn parse_yaml_text(text: &str, at: &str) -> Result<Value> {
+    refuse_deep_nesting(text).map_err(|what| Error::invalid(at, what))?;
     serde_yaml::from_str::<Value>(text).map_err(|e| yaml_error(at, &e))
+}
+
+/// Refuses text nesting deeper than [`yaml_depth::MAX_YAML_DEPTH`], before
+/// any parsing (a linear scan).
+pub fn refuse_deep_nesting(text: &str) -> std::result::Result<(), String> {
+    let limit = yaml_depth::MAX_YAML_DEPTH;
+    let d = yaml_depth::nesting_depth(text, limit);
+    if d > limit {
+        return Err(format!("nests deeper than {limit} levels"));
+    }
+    Ok(())
 }
 
 /// Formats a serde_yaml error as `file:line:column: message`.

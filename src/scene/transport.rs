@@ -47,8 +47,8 @@ use crate::transport::image::{EllisImage, ImageTask, KerrImage, Observer, Pixels
 use crate::transport::integrate::{Controller, Options, StepLaw, Tier};
 use crate::transport::kerr::Kerr;
 use crate::transport::kerr_trace::KerrDeflection;
-use crate::transport::observer::{DistantObserver, Frame, LocalObserver};
 use crate::transport::metric::Spacetime;
+use crate::transport::observer::{DistantObserver, Frame, LocalObserver};
 use crate::transport::tasks::{Curved, Deflection, GrinRays, GrinStop, ObserverScan, Task};
 
 fn one_u32() -> u32 {
@@ -71,10 +71,17 @@ fn one() -> f64 {
 #[serde(tag = "type", rename_all = "snake_case", deny_unknown_fields)]
 pub enum SpacetimeSpec {
     Minkowski,
-    Schwarzschild { mass: f64 },
-    Ellis { b0: f64 },
+    Schwarzschild {
+        mass: f64,
+    },
+    Ellis {
+        b0: f64,
+    },
     /// Kerr (deflection lists; `kerr_image` names mass and spin itself).
-    Kerr { mass: f64, a: f64 },
+    Kerr {
+        mass: f64,
+        a: f64,
+    },
 }
 
 impl SpacetimeSpec {
@@ -337,9 +344,17 @@ pub enum ObserverSpec {
         r_obs: f64,
     },
     /// Pinhole camera of a zero-angular-momentum observer.
-    Zamo { r: f64, theta_deg: f64, fov_deg: f64 },
+    Zamo {
+        r: f64,
+        theta_deg: f64,
+        fov_deg: f64,
+    },
     /// Pinhole camera of a static observer (outside the ergosphere).
-    Static { r: f64, theta_deg: f64, fov_deg: f64 },
+    Static {
+        r: f64,
+        theta_deg: f64,
+        fov_deg: f64,
+    },
 }
 
 /// `kerr_image`: see `transport::image`. Exactly one of `width`+`height`
@@ -392,17 +407,34 @@ pub struct EllisImageSpec {
 impl KerrImageSpec {
     pub fn build(&self) -> Result<KerrImage> {
         let local = |r: f64, th: f64, fov: f64, frame| {
-            Observer::Local(LocalObserver { r, theta: th.to_radians(), frame, fov_deg: fov })
+            Observer::Local(LocalObserver {
+                r,
+                theta: th.to_radians(),
+                frame,
+                fov_deg: fov,
+            })
         };
         let observer = match self.observer {
-            ObserverSpec::Distant { inclination_deg, r_obs } => Observer::Distant {
-                obs: DistantObserver { r_obs, theta_o: inclination_deg.to_radians() },
+            ObserverSpec::Distant {
+                inclination_deg,
+                r_obs,
+            } => Observer::Distant {
+                obs: DistantObserver {
+                    r_obs,
+                    theta_o: inclination_deg.to_radians(),
+                },
                 half: self.half_width,
             },
-            ObserverSpec::Zamo { r, theta_deg, fov_deg } => local(r, theta_deg, fov_deg, Frame::Zamo),
-            ObserverSpec::Static { r, theta_deg, fov_deg } => {
-                local(r, theta_deg, fov_deg, Frame::Static)
-            }
+            ObserverSpec::Zamo {
+                r,
+                theta_deg,
+                fov_deg,
+            } => local(r, theta_deg, fov_deg, Frame::Zamo),
+            ObserverSpec::Static {
+                r,
+                theta_deg,
+                fov_deg,
+            } => local(r, theta_deg, fov_deg, Frame::Static),
         };
         let pixels = match (self.width, self.height, &self.rays) {
             (Some(width), Some(height), None) => Pixels::Grid { width, height },
@@ -415,7 +447,10 @@ impl KerrImageSpec {
             }
         };
         Ok(KerrImage {
-            kerr: Kerr { mass: self.mass, a: self.a },
+            kerr: Kerr {
+                mass: self.mass,
+                a: self.a,
+            },
             observer,
             pixels,
             r_end: self.r_end,

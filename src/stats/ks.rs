@@ -62,4 +62,3 @@ mod tests {
         assert!(ks_uniform_p(&sq) < 1e-6);
     }
 }
-

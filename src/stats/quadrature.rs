@@ -73,7 +73,10 @@ mod tests {
     fn sphere_quad_of_one_is_four_pi_to_second_order() {
         // Midpoint rule in theta: error 4 pi (pi / n)^2 / 24 = 1.29e-4 at n = 200.
         let err = sphere_quad(200, |_| 1.0) - 4.0 * PI;
-        assert!(err > 0.0 && err < 4.0 * PI * (PI / 200.0).powi(2) / 20.0, "{err}");
+        assert!(
+            err > 0.0 && err < 4.0 * PI * (PI / 200.0).powi(2) / 20.0,
+            "{err}"
+        );
     }
 
     #[test]

@@ -43,8 +43,12 @@ pub fn isco_numeric(m: f64, a: f64) -> f64 {
     let (lo, hi) = (rh, 12.0 * m);
     let n = 4000;
     let e = |r: f64| circular(m, a, r).map_or(f64::INFINITY, |c| c.0);
-    let rs: Vec<f64> = (1..=n).map(|i| lo + (hi - lo) * i as f64 / n as f64).collect();
-    let k = (0..n).min_by(|&i, &j| e(rs[i]).total_cmp(&e(rs[j]))).unwrap_or(0);
+    let rs: Vec<f64> = (1..=n)
+        .map(|i| lo + (hi - lo) * i as f64 / n as f64)
+        .collect();
+    let k = (0..n)
+        .min_by(|&i, &j| e(rs[i]).total_cmp(&e(rs[j])))
+        .unwrap_or(0);
     let (mut x0, mut x1) = (rs[k.saturating_sub(1)], rs[(k + 1).min(n - 1)]);
     let gr = (5f64.sqrt() - 1.0) / 2.0;
     while x1 - x0 > 1e-13 * m {

@@ -98,22 +98,22 @@ fn events<F: Real>(ev: &[Event<F>]) -> Result<Vec<GpuEvent>> {
     ev.iter()
         .map(|e| {
             Ok(GpuEvent {
-            kind: match e.kind {
-                EventKind::Coord { index, value } => GpuEventKind::Coord {
-                    index: index as u32,
-                    value: f(value),
+                kind: match e.kind {
+                    EventKind::Coord { index, value } => GpuEventKind::Coord {
+                        index: index as u32,
+                        value: f(value),
+                    },
+                    EventKind::Sphere { radius } => GpuEventKind::Sphere { radius: f(radius) },
+                    EventKind::Approach { point } => GpuEventKind::Approach {
+                        point: point.map(f),
+                    },
+                    EventKind::KsRadius { .. } => {
+                        return Err(Error::NotSupported(
+                            "Kerr-Schild horizon events have no GPU kernel yet (issue 17)".into(),
+                        ))
+                    }
                 },
-                EventKind::Sphere { radius } => GpuEventKind::Sphere { radius: f(radius) },
-                EventKind::Approach { point } => GpuEventKind::Approach {
-                    point: point.map(f),
-                },
-                EventKind::KsRadius { .. } => {
-                    return Err(Error::NotSupported(
-                        "Kerr-Schild horizon events have no GPU kernel yet (issue 17)".into(),
-                    ))
-                }
-            },
-            rising: e.rising,
+                rising: e.rising,
             })
         })
         .collect()

@@ -39,7 +39,10 @@ pub enum Observer {
 /// Which pixels a Kerr image traces.
 #[derive(Clone, Debug, PartialEq)]
 pub enum Pixels {
-    Grid { width: usize, height: usize },
+    Grid {
+        width: usize,
+        height: usize,
+    },
     /// Explicit image-plane points `(alpha, beta)` (distant observer only):
     /// hard-ray lists.
     List(Vec<[f64; 2]>),
@@ -134,13 +137,20 @@ fn unit(v: [f64; 3]) -> [f64; 3] {
 
 fn grid_ok(w: usize, h: usize, budget: &MemBudget) -> Result<()> {
     if w == 0 || h == 0 || w > 1 << 14 || h > 1 << 14 {
-        return Err(Error::invalid("width/height", format!("{w} x {h}: each in 1..=16384")));
+        return Err(Error::invalid(
+            "width/height",
+            format!("{w} x {h}: each in 1..=16384"),
+        ));
     }
     budget.check("image rays", bytes_for((w * h) as u64, 160))
 }
 
 /// Renders `task` in precision `F`.
-pub fn render<F: Real>(task: &ImageTask, opt: &Options<F>, budget: &MemBudget) -> Result<ImageOut<F>> {
+pub fn render<F: Real>(
+    task: &ImageTask,
+    opt: &Options<F>,
+    budget: &MemBudget,
+) -> Result<ImageOut<F>> {
     match task {
         ImageTask::Kerr(k) => kerr_image(k, opt, budget),
         ImageTask::Ellis(e) => ellis_image(e, opt, budget),
@@ -150,7 +160,10 @@ pub fn render<F: Real>(task: &ImageTask, opt: &Options<F>, budget: &MemBudget) -
 fn kerr_image<F: Real>(t: &KerrImage, opt: &Options<F>, budget: &MemBudget) -> Result<ImageOut<F>> {
     let k = t.kerr;
     if !(k.mass > 0.0 && k.a.abs() < k.mass && k.mass.is_finite()) {
-        return Err(Error::invalid("task.a", format!("need M > 0 and |a| < M (a = {})", k.a)));
+        return Err(Error::invalid(
+            "task.a",
+            format!("need M > 0 and |a| < M (a = {})", k.a),
+        ));
     }
     let (shape, n) = match &t.pixels {
         Pixels::Grid { width, height } => {
@@ -159,7 +172,10 @@ fn kerr_image<F: Real>(t: &KerrImage, opt: &Options<F>, budget: &MemBudget) -> R
         }
         Pixels::List(l) => {
             if !matches!(t.observer, Observer::Distant { .. }) {
-                return Err(Error::invalid("task.rays", "ray lists need the distant observer"));
+                return Err(Error::invalid(
+                    "task.rays",
+                    "ray lists need the distant observer",
+                ));
             }
             (vec![l.len()], l.len())
         }
@@ -182,12 +198,18 @@ fn kerr_image<F: Real>(t: &KerrImage, opt: &Options<F>, budget: &MemBudget) -> R
         }
     }
     let kr = reversed(k);
-    let kf = Kerr { mass: F::of(kr.mass), a: F::of(kr.a) };
+    let kf = Kerr {
+        mass: F::of(kr.mass),
+        a: F::of(kr.a),
+    };
     check::<F, 8, Kerr<F>>(opt, &kerr_events(&kf, F::of(t.r_end)))?;
     let r_in = t.disk_r_out.map(|_| isco_numeric(k.mass, k.a.abs()));
     if let (Some(ri), Some(ro)) = (r_in, t.disk_r_out) {
         if !(ro > ri) {
-            return Err(Error::invalid("task.disk.r_out", format!("{ro}: must exceed the ISCO {ri}")));
+            return Err(Error::invalid(
+                "task.disk.r_out",
+                format!("{ro}: must exceed the ISCO {ri}"),
+            ));
         }
     }
     let disk = r_in.zip(t.disk_r_out).map(|(a, b)| (F::of(a), F::of(b)));
@@ -201,14 +223,20 @@ fn kerr_image<F: Real>(t: &KerrImage, opt: &Options<F>, budget: &MemBudget) -> R
             (Observer::Local(o), Pixels::Grid { width, height }) => {
                 Ok(o.launch(&k, i % width, i / width, *width, *height))
             }
-            (Observer::Local(_), Pixels::List(_)) => Err(Error::invalid("task.rays", "unreachable")),
+            (Observer::Local(_), Pixels::List(_)) => {
+                Err(Error::invalid("task.rays", "unreachable"))
+            }
         }
     };
     let starts: Vec<[f64; 8]> = (0..n).map(launch).collect::<Result<_>>()?;
     let rays = par_collect("transport.kerr_image", n, |i| {
         trace_kerr(&kf, starts[i].map(F::of), opt, F::of(t.r_end), disk)
     });
-    let mut out = ImageOut { shape, disk_r_in: r_in, ..Default::default() };
+    let mut out = ImageOut {
+        shape,
+        disk_r_in: r_in,
+        ..Default::default()
+    };
     for (i, r) in rays.iter().enumerate() {
         let captured = r.end == End::Event(1);
         let escaped = r.end == End::Event(0);
@@ -219,7 +247,11 @@ fn kerr_image<F: Real>(t: &KerrImage, opt: &Options<F>, budget: &MemBudget) -> R
             [0.0; 3]
         };
         let mut g = 0.0;
-        let mut rgb = if escaped { sky_colour(dir, t.cell_deg, 1).map(|c| 0.35 * c) } else { [0.0; 3] };
+        let mut rgb = if escaped {
+            sky_colour(dir, t.cell_deg, 1).map(|c| 0.35 * c)
+        } else {
+            [0.0; 3]
+        };
         if let (Some(dr), Some(ri)) = (r.disk_r, r_in) {
             // The physical photon's L_z is minus the backward ray's.
             let xi = -starts[i][1] * starts[i][6] + starts[i][2] * starts[i][5];
@@ -246,9 +278,18 @@ fn kerr_image<F: Real>(t: &KerrImage, opt: &Options<F>, budget: &MemBudget) -> R
     Ok(out)
 }
 
-fn ellis_image<F: Real>(t: &EllisImage, opt: &Options<F>, budget: &MemBudget) -> Result<ImageOut<F>> {
+fn ellis_image<F: Real>(
+    t: &EllisImage,
+    opt: &Options<F>,
+    budget: &MemBudget,
+) -> Result<ImageOut<F>> {
     grid_ok(t.width, t.height, budget)?;
-    if !(t.b0 > 0.0 && t.l_cam.is_finite() && t.r_end > t.l_cam.abs() && t.fov_deg > 0.0 && t.fov_deg < 180.0) {
+    if !(t.b0 > 0.0
+        && t.l_cam.is_finite()
+        && t.r_end > t.l_cam.abs()
+        && t.fov_deg > 0.0
+        && t.fov_deg < 180.0)
+    {
         return Err(Error::invalid(
             "task",
             "ellis_image needs b0 > 0, |l_cam| < r_end, fov_deg in (0, 180)",
@@ -256,8 +297,20 @@ fn ellis_image<F: Real>(t: &EllisImage, opt: &Options<F>, budget: &MemBudget) ->
     }
     let st = Spacetime::Ellis { b0: F::of(t.b0) };
     let ev = [
-        Event { kind: EventKind::Coord { index: 1, value: F::of(t.r_end) }, rising: true },
-        Event { kind: EventKind::Coord { index: 1, value: F::of(-t.r_end) }, rising: false },
+        Event {
+            kind: EventKind::Coord {
+                index: 1,
+                value: F::of(t.r_end),
+            },
+            rising: true,
+        },
+        Event {
+            kind: EventKind::Coord {
+                index: 1,
+                value: F::of(-t.r_end),
+            },
+            rising: false,
+        },
     ];
     check::<F, 8, Spacetime<F>>(opt, &ev)?;
     let (w, h) = (t.width, t.height);
@@ -271,10 +324,23 @@ fn ellis_image<F: Real>(t: &EllisImage, opt: &Options<F>, budget: &MemBudget) ->
         let d = unit([-1.0, x, y]);
         let (psi, tv) = planar_split(d);
         let p = st64.static_observer_momentum(t.l_cam, psi);
-        let y0 = [0.0, t.l_cam, std::f64::consts::FRAC_PI_2, 0.0, p[0], p[1], p[2], p[3]].map(F::of);
+        let y0 = [
+            0.0,
+            t.l_cam,
+            std::f64::consts::FRAC_PI_2,
+            0.0,
+            p[0],
+            p[1],
+            p[2],
+            p[3],
+        ]
+        .map(F::of);
         (trace(&st, y0, opt, &ev, |_, _| {}), tv)
     });
-    let mut out = ImageOut { shape: vec![h, w], ..Default::default() };
+    let mut out = ImageOut {
+        shape: vec![h, w],
+        ..Default::default()
+    };
     for (tr, tv) in &rays {
         let side = match tr.end {
             End::Event(0) => 1,
@@ -298,7 +364,11 @@ fn ellis_image<F: Real>(t: &EllisImage, opt: &Options<F>, budget: &MemBudget) ->
         out.steps.push(i32::try_from(tr.steps).unwrap_or(i32::MAX));
         out.reason.push(tr.end.code());
         out.side.push(side);
-        let rgb = if side == 0 { [0.0; 3] } else { sky_colour(dir, t.cell_deg, side) };
+        let rgb = if side == 0 {
+            [0.0; 3]
+        } else {
+            sky_colour(dir, t.cell_deg, side)
+        };
         out.image.push(rgb.map(F::of));
     }
     Ok(out)
@@ -311,7 +381,14 @@ mod tests {
 
     fn dp45(rtol: f64) -> Options<f64> {
         Options {
-            tier: Tier::Dopri5(Controller { rtol, eta: 0.5, atol: 1e-12, h0: 1.0, h_min: 1e-12, h_max: 1e30 }),
+            tier: Tier::Dopri5(Controller {
+                rtol,
+                eta: 0.5,
+                atol: 1e-12,
+                h0: 1.0,
+                h_min: 1e-12,
+                h_max: 1e30,
+            }),
             project: false,
             max_steps: 1_000_000,
         }
@@ -320,12 +397,21 @@ mod tests {
     #[test]
     fn schwarzschild_shadow_is_the_disk_of_radius_3_sqrt_3() {
         let task = ImageTask::Kerr(KerrImage {
-            kerr: Kerr { mass: 1.0, a: 1e-12 },
+            kerr: Kerr {
+                mass: 1.0,
+                a: 1e-12,
+            },
             observer: Observer::Distant {
-                obs: DistantObserver { r_obs: 1000.0, theta_o: 1.0 },
+                obs: DistantObserver {
+                    r_obs: 1000.0,
+                    theta_o: 1.0,
+                },
                 half: 8.0,
             },
-            pixels: Pixels::Grid { width: 24, height: 24 },
+            pixels: Pixels::Grid {
+                width: 24,
+                height: 24,
+            },
             r_end: 1000.0,
             disk_r_out: None,
             cell_deg: 10.0,

@@ -107,7 +107,10 @@ pub fn kerr_rhs<F: Real>(m: F, a: F, y: &[F; 8]) -> [F; 8] {
 impl<F: Real> Kerr<F> {
     /// Outer horizon `r_+ = M + sqrt(M^2 - a^2)`.
     pub fn horizon(&self) -> F {
-        self.mass + (self.mass * self.mass - self.a * self.a).max(F::zero()).sqrt()
+        self.mass
+            + (self.mass * self.mass - self.a * self.a)
+                .max(F::zero())
+                .sqrt()
     }
 
     /// The Boyer–Lindquist radius of state `y`.
@@ -287,7 +290,12 @@ mod tests {
     #[test]
     fn radius_solves_the_spheroid_equation_inside_and_out() {
         let a = 0.9f64;
-        for (x, y, z) in [(3.0, 1.0, 2.0), (0.3, 0.2, 1e-3), (0.0, 0.0, 2.0), (1.5, 0.0, 0.0)] {
+        for (x, y, z) in [
+            (3.0, 1.0, 2.0),
+            (0.3, 0.2, 1e-3),
+            (0.0, 0.0, 2.0),
+            (1.5, 0.0, 0.0),
+        ] {
             let r = ks_radius(a, x, y, z);
             let lhs = (x * x + y * y) / (r * r + a * a) + z * z / (r * r);
             assert!((lhs - 1.0).abs() < 1e-13, "{x} {y} {z}: {lhs}");
@@ -326,7 +334,10 @@ mod tests {
 
     #[test]
     fn projection_restores_null_and_keeps_energy() {
-        let k = Kerr { mass: 1.0, a: 0.9f64 };
+        let k = Kerr {
+            mass: 1.0,
+            a: 0.9f64,
+        };
         let mut y = [0.0, 6.0, 1.0, 2.0, -1.0, -0.7, 0.4, 0.1];
         k.project(&mut y);
         assert!(k.h(&y).abs() < 1e-14, "{}", k.h(&y));

@@ -36,7 +36,10 @@ pub struct KerrRay<F> {
 pub fn kerr_events<F: Real>(k: &Kerr<F>, r_end: F) -> Vec<Event<F>> {
     vec![
         Event {
-            kind: EventKind::KsRadius { a: k.a, value: r_end },
+            kind: EventKind::KsRadius {
+                a: k.a,
+                value: r_end,
+            },
             rising: true,
         },
         Event {
@@ -160,13 +163,22 @@ pub fn kerr_deflection<F: Real>(
     use crate::error::Error;
     let k = task.kerr;
     if !(k.mass > 0.0 && k.a.abs() <= k.mass) {
-        return Err(Error::invalid("task.spacetime", "kerr needs M > 0 and |a| <= M"));
+        return Err(Error::invalid(
+            "task.spacetime",
+            "kerr needs M > 0 and |a| <= M",
+        ));
     }
     let rh = k.horizon();
     if !(task.r_start > rh && task.r_end >= task.r_start && task.r_end.is_finite()) {
-        return Err(Error::invalid("r_start/r_end", format!("need r_+ = {rh} < r_start <= r_end")));
+        return Err(Error::invalid(
+            "r_start/r_end",
+            format!("need r_+ = {rh} < r_start <= r_end"),
+        ));
     }
-    let kf = Kerr { mass: F::of(k.mass), a: F::of(k.a) };
+    let kf = Kerr {
+        mass: F::of(k.mass),
+        a: F::of(k.a),
+    };
     super::integrate::check::<F, 8, Kerr<F>>(opt, &kerr_events(&kf, F::of(task.r_end)))?;
     let starts: Vec<[F; 8]> = task
         .impact
@@ -175,10 +187,18 @@ pub fn kerr_deflection<F: Real>(
             let pr = super::kerr::bl_pr(k.mass, k.a, task.r_start, 1.0, b, 0.0, true)
                 .filter(|_| b.is_finite())
                 .ok_or_else(|| {
-                    Error::invalid("impact_parameters", format!("b = {b} cannot start at r = {}", task.r_start))
+                    Error::invalid(
+                        "impact_parameters",
+                        format!("b = {b} cannot start at r = {}", task.r_start),
+                    )
                 })?;
             let p = [-1.0, pr, 0.0, b];
-            let y = super::kerr::bl_to_ks(k.mass, k.a, [task.r_start, std::f64::consts::FRAC_PI_2, 0.0], p);
+            let y = super::kerr::bl_to_ks(
+                k.mass,
+                k.a,
+                [task.r_start, std::f64::consts::FRAC_PI_2, 0.0],
+                p,
+            );
             Ok(y.map(F::of))
         })
         .collect::<crate::error::Result<_>>()?;
@@ -188,7 +208,11 @@ pub fn kerr_deflection<F: Real>(
     let mut out = KerrDeflectionOut::default();
     for r in &rays {
         let captured = r.end == End::Event(1);
-        out.deflection.push(if captured { F::zero() } else { r.sweep - F::PI() });
+        out.deflection.push(if captured {
+            F::zero()
+        } else {
+            r.sweep - F::PI()
+        });
         out.captured.push(captured as u8);
         out.steps.push(i32::try_from(r.steps).unwrap_or(i32::MAX));
         out.h_drift.push(r.h_drift);
@@ -222,7 +246,12 @@ mod tests {
 
     fn far(k: &Kerr<f64>, b: f64) -> [f64; 8] {
         let pr = bl_pr(k.mass, k.a, 1000.0, 1.0, b, 0.0, true).unwrap();
-        bl_to_ks(k.mass, k.a, [1000.0, std::f64::consts::FRAC_PI_2, 0.0], [-1.0, pr, 0.0, b])
+        bl_to_ks(
+            k.mass,
+            k.a,
+            [1000.0, std::f64::consts::FRAC_PI_2, 0.0],
+            [-1.0, pr, 0.0, b],
+        )
     }
 
     #[test]
@@ -232,7 +261,12 @@ mod tests {
         let (rp, rr) = crate::transport::referee_kerr::photon_orbits(1.0, 0.9);
         let bp = crate::transport::referee_kerr::spherical_orbit(1.0, 0.9, rp).0;
         let br = crate::transport::referee_kerr::spherical_orbit(1.0, 0.9, rr).0;
-        for (b, captured) in [(bp - 0.01, true), (bp + 0.01, false), (br + 0.01, true), (br - 0.01, false)] {
+        for (b, captured) in [
+            (bp - 0.01, true),
+            (bp + 0.01, false),
+            (br + 0.01, true),
+            (br - 0.01, false),
+        ] {
             let t = trace_kerr(&k, far(&k, b), &dp45(), 1000.0, None);
             assert_eq!(t.end, End::Event(captured as usize), "b = {b}");
             if captured {

@@ -18,9 +18,9 @@
 //! - [`referee`]: closed forms and quadratures in f64 that check the above
 //!   and share no code with them.
 
+pub mod disk;
 pub mod gpu;
 pub mod grin;
-pub mod disk;
 pub mod hamiltonian;
 pub mod image;
 pub mod integrate;

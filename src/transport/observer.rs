@@ -26,7 +26,10 @@ use crate::error::{Error, Result};
 
 /// The spacetime in which backward Kerr rays are integrated (module doc).
 pub fn reversed(k: Kerr<f64>) -> Kerr<f64> {
-    Kerr { mass: k.mass, a: -k.a }
+    Kerr {
+        mass: k.mass,
+        a: -k.a,
+    }
 }
 
 /// Bardeen's distant observer at `r_obs`, inclination `theta_o` (radians,
@@ -189,12 +192,7 @@ impl LocalObserver {
         }
         let er = 1.0 / grr.sqrt();
         let eth = 1.0 / gthth.sqrt();
-        let pu = [
-            ut[0] + dph * ep[0],
-            dr * er,
-            dth * eth,
-            ut[3] + dph * ep[3],
-        ];
+        let pu = [ut[0] + dph * ep[0], dr * er, dth * eth, ut[3] + dph * ep[3]];
         // Lower the index.
         let p = [
             gtt * pu[0] + gtp * pu[3],
@@ -213,7 +211,11 @@ impl LocalObserver {
 pub fn planar_split(d: [f64; 3]) -> (f64, [f64; 3]) {
     let psi = (-d[0]).clamp(-1.0, 1.0).acos();
     let n = (d[1] * d[1] + d[2] * d[2]).sqrt();
-    let t = if n > 0.0 { [0.0, d[1] / n, d[2] / n] } else { [0.0, 1.0, 0.0] };
+    let t = if n > 0.0 {
+        [0.0, d[1] / n, d[2] / n]
+    } else {
+        [0.0, 1.0, 0.0]
+    };
     (psi, t)
 }
 
@@ -226,7 +228,10 @@ mod tests {
     #[test]
     fn distant_launch_is_null_with_the_pixels_constants() {
         let k = Kerr { mass: 1.0, a: 0.9 };
-        let o = DistantObserver { r_obs: 1000.0, theta_o: 17f64.to_radians() };
+        let o = DistantObserver {
+            r_obs: 1000.0,
+            theta_o: 17f64.to_radians(),
+        };
         let y = o.launch(&k, 3.0, -2.0).unwrap();
         let kr = reversed(k);
         assert!(kr.h(&y).abs() < 1e-12);
@@ -242,7 +247,12 @@ mod tests {
         let k = Kerr { mass: 1.0, a: 0.9 };
         let kr = reversed(k);
         for frame in [Frame::Zamo, Frame::Static] {
-            let o = LocalObserver { r: 8.0, theta: 1.2, frame, fov_deg: 60.0 };
+            let o = LocalObserver {
+                r: 8.0,
+                theta: 1.2,
+                frame,
+                fov_deg: 60.0,
+            };
             o.validate(&k).unwrap();
             for (u, v) in [(0, 0), (31, 17), (63, 63)] {
                 let y = o.launch(&k, u, v, 64, 64);
@@ -251,11 +261,28 @@ mod tests {
         }
         // Inside the ergosphere (equator, r < 2) static is refused, ZAMO is not.
         let inside = ergosphere(1.0, 0.9, std::f64::consts::FRAC_PI_2) - 0.1;
-        let st = LocalObserver { r: inside, theta: std::f64::consts::FRAC_PI_2, frame: Frame::Static, fov_deg: 60.0 };
+        let st = LocalObserver {
+            r: inside,
+            theta: std::f64::consts::FRAC_PI_2,
+            frame: Frame::Static,
+            fov_deg: 60.0,
+        };
         let e = st.validate(&k).unwrap_err().to_string();
         assert!(e.contains("ergosphere"), "{e}");
-        assert!(LocalObserver { frame: Frame::Zamo, ..st }.validate(&k).is_ok());
-        let e = LocalObserver { r: 1.4, frame: Frame::Zamo, ..st }.validate(&k).unwrap_err().to_string();
+        assert!(LocalObserver {
+            frame: Frame::Zamo,
+            ..st
+        }
+        .validate(&k)
+        .is_ok());
+        let e = LocalObserver {
+            r: 1.4,
+            frame: Frame::Zamo,
+            ..st
+        }
+        .validate(&k)
+        .unwrap_err()
+        .to_string();
         assert!(e.contains("horizon"), "{e}");
     }
 
@@ -263,15 +290,26 @@ mod tests {
     fn zamo_camera_far_away_sees_the_distant_observers_constants() {
         // A ZAMO at r = 1e4 looking at pixel offset x: alpha ~ r x.
         let k = Kerr { mass: 1.0, a: 0.9 };
-        let o = LocalObserver { r: 1e4, theta: 1.0, frame: Frame::Zamo, fov_deg: 0.1 };
+        let o = LocalObserver {
+            r: 1e4,
+            theta: 1.0,
+            frame: Frame::Zamo,
+            fov_deg: 0.1,
+        };
         let y = o.launch(&k, 40, 10, 64, 64);
         let c = reversed(k).constants(&y);
         let f = 32.0 / (0.05f64.to_radians()).tan();
         let (x, yy) = ((40.5 - 32.0) / f, -(10.5 - 32.0) / f);
         let (alpha, beta) = (1e4 * x, 1e4 * yy);
-        let d = DistantObserver { r_obs: 1e4, theta_o: 1.0 };
+        let d = DistantObserver {
+            r_obs: 1e4,
+            theta_o: 1.0,
+        };
         let (xi, eta) = d.constants(0.9, alpha, beta);
         assert!((c[1] + xi).abs() < 1e-3 * xi.abs().max(1.0), "{c:?} {xi}");
-        assert!((c[2] - eta).abs() < 1e-3 * eta.abs().max(1.0), "{c:?} {eta}");
+        assert!(
+            (c[2] - eta).abs() < 1e-3 * eta.abs().max(1.0),
+            "{c:?} {eta}"
+        );
     }
 }

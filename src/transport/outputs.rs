@@ -12,10 +12,12 @@ use crate::budget::MemBudget;
 use crate::error::Result;
 use crate::real::Real;
 use crate::tensor::{Outputs, Tensor};
-use crate::transport::integrate::Options;
 use crate::transport::image::{render as render_image, ImageOut};
+use crate::transport::integrate::Options;
 use crate::transport::kerr_trace::kerr_deflection;
-use crate::transport::tasks::{deflection, grin_rays, observer_scan, Curved, GrinStop, Polyline, Task};
+use crate::transport::tasks::{
+    deflection, grin_rays, observer_scan, Curved, GrinStop, Polyline, Task,
+};
 
 pub fn vec1<F: Real>(v: Vec<F>) -> Result<Tensor> {
     let n = v.len();
@@ -183,7 +185,10 @@ pub fn t1(v: f64) -> Tensor {
     Tensor::from_shape_vec(&[1], vec![v]).unwrap_or_else(|_| Tensor::scalar(v))
 }
 
-fn image_tensors<F: Real>(r: ImageOut<F>, out: &mut Outputs) -> Result<(usize, Vec<i32>, Vec<Vec<f64>>)> {
+fn image_tensors<F: Real>(
+    r: ImageOut<F>,
+    out: &mut Outputs,
+) -> Result<(usize, Vec<i32>, Vec<Vec<f64>>)> {
     let sh = r.shape.clone();
     let n: usize = sh.iter().product();
     let mut sh3 = sh.clone();
@@ -199,20 +204,42 @@ fn image_tensors<F: Real>(r: ImageOut<F>, out: &mut Outputs) -> Result<(usize, V
         out.tensor("l_drift", Tensor::real(&sh, r.l_drift)?);
         out.tensor("q_drift", Tensor::real(&sh, r.q_drift)?);
     }
-    out.tensor("escaped", Tensor::from_shape_vec(&sh, r.reason.iter().map(|&c| (c == 0) as u8).collect())?);
+    out.tensor(
+        "escaped",
+        Tensor::from_shape_vec(&sh, r.reason.iter().map(|&c| (c == 0) as u8).collect())?,
+    );
     out.tensor("captured", Tensor::from_shape_vec(&sh, r.captured)?);
-    out.tensor("final_dir", Tensor::real(&sh3, r.final_dir.into_iter().flatten().collect())?);
+    out.tensor(
+        "final_dir",
+        Tensor::real(&sh3, r.final_dir.into_iter().flatten().collect())?,
+    );
     out.tensor("h_drift", Tensor::real(&sh, r.h_drift)?);
     out.tensor("err_est", Tensor::real(&sh, r.err_est)?);
     out.tensor("reason", Tensor::from_shape_vec(&sh, r.reason)?);
     if sh.len() == 2 {
-        out.tensor("image", Tensor::real(&sh3, r.image.into_iter().flatten().collect())?);
+        out.tensor(
+            "image",
+            Tensor::real(&sh3, r.image.into_iter().flatten().collect())?,
+        );
     }
     if let Some(ri) = r.disk_r_in {
-        let inner = r.disk_r.iter().filter(|v| v.f64() > 0.0).fold(f64::INFINITY, |m, v| m.min(v.f64()));
-        out.tensor("disk_inner_r", t1(if inner.is_finite() { inner } else { -1.0 }));
+        let inner = r
+            .disk_r
+            .iter()
+            .filter(|v| v.f64() > 0.0)
+            .fold(f64::INFINITY, |m, v| m.min(v.f64()));
+        out.tensor(
+            "disk_inner_r",
+            t1(if inner.is_finite() { inner } else { -1.0 }),
+        );
         out.tensor("disk_r_in", t1(ri));
-        out.tensor("disk_hit", Tensor::from_shape_vec(&sh, r.disk_r.iter().map(|v| (v.f64() > 0.0) as u8).collect())?);
+        out.tensor(
+            "disk_hit",
+            Tensor::from_shape_vec(
+                &sh,
+                r.disk_r.iter().map(|v| (v.f64() > 0.0) as u8).collect(),
+            )?,
+        );
         out.tensor("disk_r", Tensor::real(&sh, r.disk_r)?);
         out.tensor("redshift", Tensor::real(&sh, r.redshift)?);
     }
@@ -242,9 +269,14 @@ pub fn run_curved<F: Real>(
             let n = r.deflection.len();
             let q = r.deflection.iter().map(|v| vec![v.f64()]).collect();
             let col = |i: usize| Tensor::real(&[n], r.drift.iter().map(|d| d[i]).collect());
-            out.tensor("e_drift", col(0)?).tensor("l_drift", col(1)?).tensor("q_drift", col(2)?);
+            out.tensor("e_drift", col(0)?)
+                .tensor("l_drift", col(1)?)
+                .tensor("q_drift", col(2)?);
             out.tensor("deflection", Tensor::real(&[n], r.deflection)?);
-            out.tensor("escaped", Tensor::from_shape_vec(&[n], r.captured.iter().map(|c| 1 - c).collect())?);
+            out.tensor(
+                "escaped",
+                Tensor::from_shape_vec(&[n], r.captured.iter().map(|c| 1 - c).collect())?,
+            );
             out.tensor("captured", Tensor::from_shape_vec(&[n], r.captured)?);
             out.tensor("h_drift", Tensor::real(&[n], r.h_drift)?);
             out.tensor("err_est", Tensor::real(&[n], r.err_est)?);

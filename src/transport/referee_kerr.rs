@@ -74,7 +74,9 @@ pub fn critical_curve(m: f64, a: f64, theta_o: f64, n: usize) -> Vec<[f64; 2]> {
     // The visible arc is where beta^2 >= 0: find its ends by bisection
     // from the orbit radius where beta^2 is largest (a coarse scan).
     let k = 4096;
-    let rs: Vec<f64> = (0..=k).map(|i| r1 + (r2 - r1) * i as f64 / k as f64).collect();
+    let rs: Vec<f64> = (0..=k)
+        .map(|i| r1 + (r2 - r1) * i as f64 / k as f64)
+        .collect();
     let imax = (0..=k)
         .max_by(|&i, &j| beta2(rs[i]).total_cmp(&beta2(rs[j])))
         .unwrap_or(k / 2);
@@ -95,8 +97,16 @@ pub fn critical_curve(m: f64, a: f64, theta_o: f64, n: usize) -> Vec<[f64; 2]> {
             hi
         }
     };
-    let left = if beta2(r1) >= 0.0 { r1 } else { root(rs[imax], r1) };
-    let right = if beta2(r2) >= 0.0 { r2 } else { root(rs[imax], r2) };
+    let left = if beta2(r1) >= 0.0 {
+        r1
+    } else {
+        root(rs[imax], r1)
+    };
+    let right = if beta2(r2) >= 0.0 {
+        r2
+    } else {
+        root(rs[imax], r2)
+    };
     // Cosine spacing crowds points at the arc ends, where beta moves fast.
     let pts: Vec<[f64; 2]> = (0..n)
         .map(|i| {
@@ -130,7 +140,15 @@ pub fn inside(poly: &[[f64; 2]], x: f64, y: f64) -> bool {
 /// outside, 2 where the curve crosses the pixel (either verdict is right).
 /// The curve is sampled finely enough (spacing under a tenth of a pixel)
 /// that every pixel it passes through holds a sample.
-pub fn shadow_classes(m: f64, a: f64, theta_o: f64, w: usize, h: usize, hw: f64, hh: f64) -> Vec<u8> {
+pub fn shadow_classes(
+    m: f64,
+    a: f64,
+    theta_o: f64,
+    w: usize,
+    h: usize,
+    hw: f64,
+    hh: f64,
+) -> Vec<u8> {
     let (px, py) = (2.0 * hw / w as f64, 2.0 * hh / h as f64);
     let mut n = 2000;
     let poly = loop {
@@ -165,7 +183,10 @@ pub fn shadow_classes(m: f64, a: f64, theta_o: f64, w: usize, h: usize, hw: f64,
     for s in poly.windows(2) {
         for k in 0..4 {
             let t = k as f64 / 4.0;
-            mark(s[0][0] + t * (s[1][0] - s[0][0]), s[0][1] + t * (s[1][1] - s[0][1]));
+            mark(
+                s[0][0] + t * (s[1][0] - s[0][0]),
+                s[0][1] + t * (s[1][1] - s[0][1]),
+            );
         }
     }
     out
@@ -179,7 +200,10 @@ mod tests {
     fn closed_forms_match_independent_values_for_a_09_and_0998() {
         // Values computed independently (Python, the same closed forms).
         let (rp, rm) = horizons(1.0, 0.9);
-        assert!((rp - 1.435_889_894_354_067).abs() < 1e-12 && (rm - 0.564_110_105_645_933).abs() < 1e-12);
+        assert!(
+            (rp - 1.435_889_894_354_067).abs() < 1e-12
+                && (rm - 0.564_110_105_645_933).abs() < 1e-12
+        );
         let (pro, retro) = isco(1.0, 0.9);
         assert!((pro - 2.320_883_041_761_887).abs() < 1e-12, "{pro}");
         assert!((retro - 8.717_352_279_606_489).abs() < 1e-12, "{retro}");
@@ -217,7 +241,8 @@ mod tests {
         let xmin = poly.iter().map(|p| p[0]).fold(f64::INFINITY, f64::min);
         let xmax = poly.iter().map(|p| p[0]).fold(f64::NEG_INFINITY, f64::max);
         let (pp, pr) = photon_orbits(1.0, 0.9);
-        let b = |r: f64, s: f64| -(r.powi(2) * (3.0 - r) - 0.81 * (r + 1.0)) / (0.9 * (r - 1.0)) * s;
+        let b =
+            |r: f64, s: f64| -(r.powi(2) * (3.0 - r) - 0.81 * (r + 1.0)) / (0.9 * (r - 1.0)) * s;
         assert!((xmin - b(pp, 1.0)).abs() < 1e-9 && xmin < -2.0, "{xmin}");
         assert!((xmax - b(pr, 1.0)).abs() < 1e-9 && xmax > 6.0, "{xmax}");
         assert!(inside(&poly, 1.0, 0.0) && !inside(&poly, 8.0, 0.0));

@@ -25,8 +25,8 @@ mod pathtrace_gpu;
 mod rays;
 mod selftest;
 mod transport;
-mod transport_kerr;
 mod transport_gpu;
+mod transport_kerr;
 mod volume;
 mod volume_diff;
 mod volume_fit;
@@ -121,7 +121,6 @@ impl<'a> OpCtx<'a> {
     pub fn resolve(&self, p: &str) -> PathBuf {
         self.root.join(p)
     }
-
 }
 
 /// The backends and precisions an operation runs in. The manifest loader

@@ -284,7 +284,11 @@ fn convergence(ctx: &OpCtx) -> Result<Outputs> {
     }
     let t = Instant::now();
     let (reference, _) = render_with(&s, ref_spp, 1 << 31, ctx)?;
-    let noise = if clamp { 0.0 } else { mean_variance(&reference.variance) };
+    let noise = if clamp {
+        0.0
+    } else {
+        mean_variance(&reference.variance)
+    };
     let mut rmse = Vec::with_capacity(spps.len());
     for &spp in &spps {
         let mut acc = 0.0;
@@ -395,7 +399,10 @@ fn rmse_vs_reference(ctx: &OpCtx) -> Result<Outputs> {
     let (img, secs) = timed_render(&s, &s.params, ctx)?;
     let mut out = Outputs::default();
     image_outputs(&img, secs, &s.params, &mut out)?;
-    out.tensor("rmse", Tensor::scalar(mse(&img.rgb, &reference.rgb, true).sqrt()));
+    out.tensor(
+        "rmse",
+        Tensor::scalar(mse(&img.rgb, &reference.rgb, true).sqrt()),
+    );
     out.tensor(
         "rmse_raw",
         Tensor::scalar(mse(&img.rgb, &reference.rgb, false).sqrt()),
@@ -431,7 +438,11 @@ fn speed_error(ctx: &OpCtx) -> Result<Outputs> {
         let (img, t) = render_with(&s, spp, s.params.seed, ctx)?;
         secs.push(t);
         rmse.push(mse(&img.rgb, &reference.rgb, true).sqrt());
-        raw.push((mse(&img.rgb, &reference.rgb, false) - noise).max(0.0).sqrt());
+        raw.push(
+            (mse(&img.rgb, &reference.rgb, false) - noise)
+                .max(0.0)
+                .sqrt(),
+        );
         out.metric(&format!("time_s_{spp}"), t);
     }
     let k = [spps.len()];

@@ -100,7 +100,12 @@ fn packed(t: Vec<f32>, off: Vec<i32>) -> Result<Outputs> {
 
 fn good(_: &OpCtx) -> Result<Outputs> {
     let mut o = packed(vec![0.1, 0.2, 0.3, 0.5, 0.7], vec![0, 3, 5])?;
-    o.tensor("rgb", image(false)?);
+    o.tensor("rgb", image(false)?)
+        .tensor("nothing", Tensor::from_shape_vec(&[4, 4], vec![0u8; 16])?)
+        .tensor(
+            "inside",
+            Tensor::from_shape_vec(&[5], vec![1u8, 1, 1, 0, 0])?,
+        );
     Ok(o)
 }
 

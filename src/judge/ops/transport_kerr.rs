@@ -17,8 +17,8 @@ use crate::real::Real;
 use crate::scene::transport::{parse, ResearchPreset, ResearchSpec, TaskSpec, TransportScene};
 use crate::tensor::{Outputs, Tensor};
 use crate::transport::image::{render as render_image, ImageOut, ImageTask, Observer, Pixels};
-use crate::transport::referee_kerr as rk;
 use crate::transport::outputs::t1;
+use crate::transport::referee_kerr as rk;
 use crate::transport::tasks::{Curved, Task};
 
 pub const OPS: &[OpEntry] = &[
@@ -30,14 +30,20 @@ pub const OPS: &[OpEntry] = &[
 fn curved_image(s: &TransportScene) -> Result<ImageTask> {
     match s.build::<f64>()?.0 {
         Task::Curved(Curved::Image(t)) => Ok(t),
-        _ => Err(Error::invalid("task", "this operation needs a kerr_image or ellis_image scene")),
+        _ => Err(Error::invalid(
+            "task",
+            "this operation needs a kerr_image or ellis_image scene",
+        )),
     }
 }
 
 fn closed_form(ctx: &OpCtx) -> Result<Outputs> {
     let s = parse(ctx.scene()?)?;
     let TaskSpec::KerrImage(spec) = &s.task else {
-        return Err(Error::invalid("task", "transport.kerr_closed_form needs a kerr_image scene"));
+        return Err(Error::invalid(
+            "task",
+            "transport.kerr_closed_form needs a kerr_image scene",
+        ));
     };
     let k = spec.build()?;
     let (m, a) = (k.kerr.mass, k.kerr.a.abs());
@@ -46,7 +52,10 @@ fn closed_form(ctx: &OpCtx) -> Result<Outputs> {
     let (pp, pr) = rk::photon_orbits(m, a);
     let (ip, ir) = rk::isco(m, a);
     out.tensor("horizon", t1(rp))
-        .tensor("ergosphere_equator", t1(rk::ergosphere(m, a, std::f64::consts::FRAC_PI_2)))
+        .tensor(
+            "ergosphere_equator",
+            t1(rk::ergosphere(m, a, std::f64::consts::FRAC_PI_2)),
+        )
         .tensor("photon_pro", t1(pp))
         .tensor("photon_retro", t1(pr))
         .tensor("isco", t1(ip))
@@ -60,7 +69,9 @@ fn closed_form(ctx: &OpCtx) -> Result<Outputs> {
         Pixels::Grid { width, height } => {
             let c = rk::shadow_classes(m, a, obs.theta_o, *width, *height, half, half);
             let c = if flip < 0.0 {
-                (0..width * height).map(|i| c[(i / width) * width + (width - 1 - i % width)]).collect()
+                (0..width * height)
+                    .map(|i| c[(i / width) * width + (width - 1 - i % width)])
+                    .collect()
             } else {
                 c
             };
@@ -68,11 +79,22 @@ fn closed_form(ctx: &OpCtx) -> Result<Outputs> {
         }
         Pixels::List(l) => {
             let poly = rk::critical_curve(m, a, obs.theta_o, 1 << 18);
-            (l.iter().map(|p| rk::inside(&poly, flip * p[0], p[1]) as u8).collect(), vec![l.len()])
+            (
+                l.iter()
+                    .map(|p| rk::inside(&poly, flip * p[0], p[1]) as u8)
+                    .collect(),
+                vec![l.len()],
+            )
         }
     };
-    out.tensor("shadow_decided", Tensor::from_shape_vec(&shape, classes.iter().map(|&c| (c != 2) as u8).collect())?);
-    out.tensor("shadow_captured", Tensor::from_shape_vec(&shape, classes.iter().map(|&c| (c == 1) as u8).collect())?);
+    out.tensor(
+        "shadow_decided",
+        Tensor::from_shape_vec(&shape, classes.iter().map(|&c| (c != 2) as u8).collect())?,
+    );
+    out.tensor(
+        "shadow_captured",
+        Tensor::from_shape_vec(&shape, classes.iter().map(|&c| (c == 1) as u8).collect())?,
+    );
     out.tensor("shadow_class", Tensor::from_shape_vec(&shape, classes)?);
     Ok(out)
 }
@@ -90,8 +112,12 @@ fn mirror_in<F: Real>(ctx: &OpCtx, s: &TransportScene) -> Result<Outputs> {
     };
     let img: Vec<F> = r.image.iter().flatten().copied().collect();
     let at = |v: usize, u: usize, c: usize| img[(v * w + u) * 3 + c];
-    let lr: Vec<F> = (0..h * w * 3).map(|i| at(i / 3 / w, w - 1 - (i / 3) % w, i % 3)).collect();
-    let ud: Vec<F> = (0..h * w * 3).map(|i| at(h - 1 - i / 3 / w, (i / 3) % w, i % 3)).collect();
+    let lr: Vec<F> = (0..h * w * 3)
+        .map(|i| at(i / 3 / w, w - 1 - (i / 3) % w, i % 3))
+        .collect();
+    let ud: Vec<F> = (0..h * w * 3)
+        .map(|i| at(h - 1 - i / 3 / w, (i / 3) % w, i % 3))
+        .collect();
     let mut out = Outputs::default();
     out.tensor("image", Tensor::real(&[h, w, 3], img)?);
     out.tensor("image_lr", Tensor::real(&[h, w, 3], lr)?);
@@ -105,8 +131,16 @@ fn mirror(ctx: &OpCtx) -> Result<Outputs> {
 }
 
 fn research_in<F: Real>(ctx: &OpCtx, s: &TransportScene) -> Result<Outputs> {
-    let plain = TransportScene { research: None, ..s.clone() };
-    let valid = TransportScene { research: Some(ResearchSpec { preset: ResearchPreset::Validate }), ..s.clone() };
+    let plain = TransportScene {
+        research: None,
+        ..s.clone()
+    };
+    let valid = TransportScene {
+        research: Some(ResearchSpec {
+            preset: ResearchPreset::Validate,
+        }),
+        ..s.clone()
+    };
     let t0 = Instant::now();
     let a = rendered::<F>(ctx, &plain)?;
     let t1s = t0.elapsed().as_secs_f64();
@@ -127,13 +161,23 @@ fn research_in<F: Real>(ctx: &OpCtx, s: &TransportScene) -> Result<Outputs> {
             }
         })
         .collect();
-    let cap: Vec<u8> = a.captured.iter().zip(&b.captured).map(|(x, y)| (x != y) as u8).collect();
+    let cap: Vec<u8> = a
+        .captured
+        .iter()
+        .zip(&b.captured)
+        .map(|(x, y)| (x != y) as u8)
+        .collect();
     let mut out = Outputs::default();
     out.metric("max_dir_diff", dir.iter().fold(0.0, |m: f64, v| m.max(*v)));
     out.metric("captured_diff_count", cap.iter().map(|&c| c as f64).sum());
     out.metric("time_s", t1s);
     if !a.disk_r.is_empty() {
-        let d: Vec<f64> = a.disk_r.iter().zip(&b.disk_r).map(|(x, y)| (x.f64() - y.f64()).abs()).collect();
+        let d: Vec<f64> = a
+            .disk_r
+            .iter()
+            .zip(&b.disk_r)
+            .map(|(x, y)| (x.f64() - y.f64()).abs())
+            .collect();
         out.tensor("disk_r_diff", Tensor::from_shape_vec(&sh, d)?);
     }
     out.tensor("dir_diff", Tensor::from_shape_vec(&sh, dir)?);

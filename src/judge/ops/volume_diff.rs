@@ -31,10 +31,10 @@ use crate::error::{Error, Result};
 use crate::rays::{f_ray, RayGen};
 use crate::real::{Precision, Real};
 use crate::rng::rand_f64;
+use crate::stats::summary::median;
 use crate::tensor::{Outputs, Tensor};
 use crate::volume::compose::Compose;
 use crate::volume::diff::{f_diff, DiffOptions, Reduce, Upstream, DEFAULT_CHUNKS};
-use crate::stats::summary::median;
 use crate::volume::field::{ColorDesc, FieldDesc};
 use crate::volume::grad_outputs::grad_outputs;
 use crate::volume::loss::{LossWeights, ProbeSpec, MAX_PROBES};
@@ -289,7 +289,15 @@ fn op_grad_fd(ctx: &OpCtx) -> Result<Outputs> {
             return Err(Error::invalid(at(ctx, k), format!("{h} is not in (0, 1)")));
         }
     }
-    grad_fd(&cam, &gen, &p, &w, &probes, [h_sigma, h_color, h_pose], &ctx.budget)
+    grad_fd(
+        &cam,
+        &gen,
+        &p,
+        &w,
+        &probes,
+        [h_sigma, h_color, h_pose],
+        &ctx.budget,
+    )
 }
 
 // ---------------------------------------------------------------------------
@@ -314,7 +322,16 @@ fn op_grad_closed_form(ctx: &OpCtx) -> Result<Outputs> {
         )));
     };
     let rays = f_ray::<f64>(&cam, &gen, &ctx.budget)?;
-    grad_closed_form(a, c, p.background, &rays, cam.c2w(), &gen, &w.rgb, ctx.case_id)
+    grad_closed_form(
+        a,
+        c,
+        p.background,
+        &rays,
+        cam.c2w(),
+        &gen,
+        &w.rgb,
+        ctx.case_id,
+    )
 }
 
 // ---------------------------------------------------------------------------

@@ -17,7 +17,6 @@
 
 use super::volume_diff::{loss_weights, upstream};
 use super::{OpCtx, OpEntry, Support};
-use crate::volume::referee::finite_diff::{central, fd_loss};
 use crate::camera::Camera;
 use crate::error::{Error, Result};
 use crate::rays::RayGen;
@@ -28,6 +27,7 @@ use crate::tensor::{Outputs, Tensor};
 use crate::volume::diff::{f_diff, DiffOptions, Reduce};
 use crate::volume::field::hash::{HashMlp, HashMlpDesc, MAX_WIDTH};
 use crate::volume::field::FieldDesc;
+use crate::volume::referee::finite_diff::{central, fd_loss};
 use crate::volume::referee::hash as referee;
 use crate::volume::{Chain, VolumeParams};
 

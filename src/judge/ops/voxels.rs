@@ -31,8 +31,8 @@ use crate::voxels::cast::{CastParams, CastReal};
 use crate::voxels::contour::fit_all;
 use crate::voxels::dag::{build_dag, Dag};
 use crate::voxels::octree::{build, Octree};
-use crate::voxels::raysets::{hard, incoherent, HARD_KINDS};
 use crate::voxels::outputs::{build_metrics, put_hits};
+use crate::voxels::raysets::{hard, incoherent, HARD_KINDS};
 use crate::voxels::render::{cast_all, cast_all_contours, cast_all_dag, referee_all, Structure};
 use crate::voxels::shape::Shape;
 
@@ -89,7 +89,11 @@ pub(super) fn from64<F: Real>(rays: Vec<([f64; 3], [f64; 3])>) -> (Vec<[F; 3]>, 
         .unzip()
 }
 
-pub(super) fn camera_batch<F: Real>(ctx: &OpCtx, sc: &VoxelScene, size: Option<u32>) -> Result<Batch<F>> {
+pub(super) fn camera_batch<F: Real>(
+    ctx: &OpCtx,
+    sc: &VoxelScene,
+    size: Option<u32>,
+) -> Result<Batch<F>> {
     let (cam, mut gen): (_, RayGen) = sc.view.build()?;
     let cam = match size {
         Some(s) => {
@@ -435,8 +439,8 @@ fn bench(ctx: &OpCtx) -> Result<Outputs> {
 mod tests {
     use super::*;
     use crate::budget::MemBudget;
-    use crate::real::Precision;
     use crate::judge::ops::BackendKind;
+    use crate::real::Precision;
     use crate::scene::SceneDoc;
     use serde_yaml::Value;
 

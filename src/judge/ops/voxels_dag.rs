@@ -6,15 +6,15 @@
 //! | `voxels.dag_referee` | distinct non-uniform cube contents per level from the scene predicate (`nodes_per_level`, depth <= 7) |
 
 use super::{OpCtx, OpEntry, Support};
-use crate::judge::measure::timed;
-use crate::voxels::outputs::build_metrics;
 use crate::error::Result;
+use crate::judge::measure::timed;
 use crate::rays::f_ray;
 use crate::real::{Precision, Real};
 use crate::tensor::{Outputs, Tensor};
 use crate::voxels::cast::{CastParams, CastReal};
 use crate::voxels::dag::{build_dag, Dag};
 use crate::voxels::octree::{build, Octree};
+use crate::voxels::outputs::build_metrics;
 use crate::voxels::raysets::incoherent;
 use crate::voxels::referee_dag::distinct_nodes_per_level;
 use crate::voxels::render::{cast_all, cast_all_dag, VoxelHits};

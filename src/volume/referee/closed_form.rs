@@ -260,16 +260,8 @@ pub fn grad_closed_form(
                 mean,
                 std,
             } => {
-                let (tau, go, gd) = gaussian_tau_grad(
-                    *amplitude,
-                    *mean,
-                    *std,
-                    o,
-                    d,
-                    t0,
-                    t1,
-                    box_planes(o, d, gen),
-                );
+                let (tau, go, gd) =
+                    gaussian_tau_grad(*amplitude, *mean, *std, o, d, t0, t1, box_planes(o, d, gen));
                 let k = wc * (-tau).exp();
                 let go = go.map(|v| k * v);
                 let gd = gd.map(|v| k * v);
@@ -317,7 +309,6 @@ pub fn grad_closed_form(
     }
     Ok(out)
 }
-
 
 #[cfg(test)]
 mod tests {

@@ -208,14 +208,10 @@ pub fn grad_fd(
     // Pose.
     let mut dcam = Vec::with_capacity(6);
     for q in 0..6 {
-        let (cp, cm) = (
-            perturb_pose(cam, q, h_pose),
-            perturb_pose(cam, q, -h_pose),
-        );
+        let (cp, cm) = (perturb_pose(cam, q, h_pose), perturb_pose(cam, q, -h_pose));
         dcam.push(fd(&p, &p, &cp, &cm, h_pose)?);
     }
     out.tensor("dcam", Tensor::real(&[6], dcam)?);
     out.counter("renders", renders);
     Ok(out)
 }
-
