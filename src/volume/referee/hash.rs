@@ -100,7 +100,7 @@ pub fn query(d: &HashMlpDesc, x: [f64; 3]) -> (f64, [f64; 3]) {
 
 #[cfg(test)]
 mod tests {
-    use super::super::field::hash::{DensityAct, HashConfig, HashMlp, HashMlpDesc, MAX_WIDTH};
+    use crate::volume::field::hash::{DensityAct, HashConfig, HashMlp, HashMlpDesc, MAX_WIDTH};
     use super::*;
 
     #[test]
