@@ -282,12 +282,7 @@ pub unsafe extern "C" fn hp_field_create_color_constant(
 
 #[no_mangle]
 pub unsafe extern "C" fn hp_field_destroy(field: *mut HpField) -> i32 {
-    guard(None, "hp_field_destroy", || {
-        if !field.is_null() {
-            drop(Box::from_raw(field));
-        }
-        Ok(())
-    })
+    crate::plan::destroy(field, "hp_field_destroy")
 }
 
 #[cfg(test)]

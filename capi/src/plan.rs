@@ -112,14 +112,22 @@ pub unsafe extern "C" fn hp_ctx_create(abi_version: u32, out: *mut *mut HpCtx) -
     })
 }
 
-#[no_mangle]
-pub unsafe extern "C" fn hp_ctx_destroy(ctx: *mut HpCtx) -> i32 {
-    guard(None, "hp_ctx_destroy", || {
-        if !ctx.is_null() {
-            drop(Box::from_raw(ctx));
+/// Frees a handle made by `Box::into_raw` (NULL is accepted and ignored).
+///
+/// # Safety
+/// `p` is NULL or a handle of type `T` from this library, not freed before.
+pub(crate) unsafe fn destroy<T>(p: *mut T, what: &str) -> i32 {
+    guard(None, what, || {
+        if !p.is_null() {
+            drop(Box::from_raw(p));
         }
         Ok(())
     })
+}
+
+#[no_mangle]
+pub unsafe extern "C" fn hp_ctx_destroy(ctx: *mut HpCtx) -> i32 {
+    destroy(ctx, "hp_ctx_destroy")
 }
 
 #[no_mangle]
@@ -386,12 +394,7 @@ pub unsafe extern "C" fn hp_plan_create(
 
 #[no_mangle]
 pub unsafe extern "C" fn hp_plan_destroy(plan: *mut HpPlan) -> i32 {
-    guard(None, "hp_plan_destroy", || {
-        if !plan.is_null() {
-            drop(Box::from_raw(plan));
-        }
-        Ok(())
-    })
+    destroy(plan, "hp_plan_destroy")
 }
 
 #[no_mangle]
