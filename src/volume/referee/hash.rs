@@ -100,8 +100,8 @@ pub fn query(d: &HashMlpDesc, x: [f64; 3]) -> (f64, [f64; 3]) {
 
 #[cfg(test)]
 mod tests {
-    use crate::volume::field::hash::{DensityAct, HashConfig, HashMlp, HashMlpDesc, MAX_WIDTH};
     use super::*;
+    use crate::volume::field::hash::{DensityAct, HashConfig, HashMlp, HashMlpDesc, MAX_WIDTH};
 
     #[test]
     fn the_referee_and_the_field_agree_on_every_level_with_collisions() {
