@@ -23,7 +23,7 @@ use glam::Vec3A;
 
 use super::{BackendKind, OpCtx, OpEntry, Support};
 use crate::error::{Error, Result};
-use crate::judge::plot::{plot_loglog, PLOT_H, PLOT_W};
+use crate::judge::plot::{self, Chart, Series};
 use crate::pathtrace::checks::{bsdf_checks, region_sum, self_intersection, Region};
 use crate::pathtrace::integrator::first_hits;
 use crate::pathtrace::listed::{unit, HitList, ShapeParam};
@@ -416,12 +416,19 @@ fn rmse_vs_reference(ctx: &OpCtx) -> Result<Outputs> {
 /// subtracted when it is rendered here). The reference is a `ref_spp` render
 /// (seed `ref_seed`) or, with `params.reference`, an (H, W, 3) `.npy` file
 /// (relative to the manifest). Metrics `time_s_<spp>`; `plot_image` draws
-/// log RMSE against log seconds (see [`plot_loglog`]).
+/// log RMSE against log seconds, with the ideal Monte Carlo rate (slope
+/// -1/2 through the first point) as a guide.
 fn speed_error(ctx: &OpCtx) -> Result<Outputs> {
     let s = load(ctx)?;
     let spps: Vec<u32> = ctx.param_or("spp", vec![4, 16, 64, 256])?;
     let ref_spp: u32 = ctx.param_or("ref_spp", 4096)?;
     let ref_seed: u32 = ctx.param_or("ref_seed", 1 << 31)?;
+    if spps.is_empty() || spps.contains(&0) {
+        return Err(Error::invalid(
+            format!("{} params.spp", ctx.case_id),
+            "need a non-empty list of positive sample counts",
+        ));
+    }
     let mut out = Outputs::default();
     let (w, h) = (s.params.width as usize, s.params.height as usize);
     let (reference, noise) = match ctx.param::<String>("reference")? {
@@ -446,10 +453,20 @@ fn speed_error(ctx: &OpCtx) -> Result<Outputs> {
         out.metric(&format!("time_s_{spp}"), t);
     }
     let k = [spps.len()];
-    out.tensor(
-        "plot_image",
-        Tensor::real3(&[PLOT_H, PLOT_W], &plot_loglog(&secs, &rmse))?,
+    let ideal: Vec<f64> = secs
+        .iter()
+        .map(|t| rmse[0] * (t / secs[0]).powf(-0.5))
+        .collect();
+    let chart = Chart::loglog(
+        "path tracer: speed against error",
+        "seconds",
+        "RMSE vs reference",
+        vec![
+            Series::new("RMSE", secs.clone(), rmse.clone()),
+            Series::guide("ideal t^-1/2", secs.clone(), ideal),
+        ],
     );
+    out.tensor("plot_image", plot::render(&chart)?);
     out.tensor(
         "spp",
         Tensor::real(&k, spps.iter().map(|&v| v as f64).collect())?,

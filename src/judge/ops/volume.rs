@@ -24,7 +24,7 @@ use super::{BackendKind, OpCtx, OpEntry, Support};
 use crate::camera::Camera;
 use crate::error::{Error, Result};
 use crate::judge::measure::process_cpu_s;
-use crate::judge::plot::sweep_plot;
+use crate::judge::plot::{self, Chart, Series};
 use crate::rays::{f_ray, RayGen, Rays};
 use crate::real::Real;
 use crate::rng::rand_f64;
@@ -526,7 +526,16 @@ fn op_dt_sweep(ctx: &OpCtx) -> Result<Outputs> {
     }
     let n = [dts.len()];
     let mut out = Outputs::default();
-    out.tensor("plot_rgb", sweep_plot(&cols)?);
+    let chart = Chart::loglog(
+        "volume forward: speed against error over dt",
+        "seconds per frame",
+        "max error vs closed form",
+        vec![
+            Series::new("f32", cols[0].clone(), cols[1].clone()),
+            Series::new("f64", cols[2].clone(), cols[3].clone()),
+        ],
+    );
+    out.tensor("plot_rgb", plot::render(&chart)?);
     out.tensor("dt", Tensor::real(&n, dts.clone())?);
     for (name, c) in ["time_f32", "err_f32", "time_f64", "err_f64"]
         .iter()
