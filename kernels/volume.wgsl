@@ -94,7 +94,8 @@ struct RayOut {
 @group(0) @binding(7) var<storage, read_write> counts: array<vec4<u32>>;
 // Sample offsets of the batch's rays (off[0] = 0), n + 1 entries.
 @group(0) @binding(8) var<storage, read> off: array<u32>;
-// Per sample: (t, dt, sigma, ray id as bits) and (r, g, b, 0).
+// Per sample: (t, dt, sigma, ray id as bits) and (r, g, b, lattice index k
+// as bits; the backward's t0/t1 dependence, kernels/volume_diff.wgsl).
 @group(0) @binding(9) var<storage, read_write> samp0: array<vec4<f32>>;
 @group(0) @binding(10) var<storage, read_write> samp1: array<vec4<f32>>;
 // Per sample: (alpha, log T before the sample).
@@ -523,7 +524,7 @@ fn f_samp_fill(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workg
             continue;
         }
         samp0[m] = vec4<f32>(s.t, s.h, sigma_at(x, &unstable), bitcast<f32>(V.ray_base + j));
-        samp1[m] = vec4<f32>(color_at(x), 0.0);
+        samp1[m] = vec4<f32>(color_at(x), bitcast<f32>(k));
         m += 1u;
     }
     if (unstable) {
