@@ -30,6 +30,7 @@ mod transport_kerr;
 mod volume;
 mod volume_diff;
 mod volume_fit;
+mod volume_gpu_diff;
 mod volume_hash;
 mod voxels;
 mod voxels_contour;

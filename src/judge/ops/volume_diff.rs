@@ -25,7 +25,7 @@
 use std::path::Path;
 use std::time::Instant;
 
-use super::{OpCtx, OpEntry, Support};
+use super::{BackendKind, OpCtx, OpEntry, Support};
 use crate::camera::Camera;
 use crate::error::{Error, Result};
 use crate::rays::{f_ray, RayGen};
@@ -58,9 +58,9 @@ const GRAD_PARAMS: &[&str] = &[
 pub const OPS: &[OpEntry] = &[
     OpEntry {
         name: "volume.grad",
-        doc: "f_diff: dsigma, dcolor (grid nodes), dsigma_param, dcolor_const, dcam, dsigma_probe, dcolor_probe; params chain fused|unfused, reduce sorted|chunked",
+        doc: "f_diff: dsigma, dcolor (grid nodes), dsigma_param, dcolor_const, dcam, dsigma_probe, dcolor_probe; params chain fused|unfused, reduce sorted|chunked (GPU: fixed|float_atomic)",
         params: GRAD_PARAMS,
-        support: Support::Cpu,
+        support: Support::CpuGpuF32,
         run: op_grad,
     },
     OpEntry {
@@ -91,12 +91,12 @@ pub const OPS: &[OpEntry] = &[
         name: "volume.grad_perf",
         doc: "backward medians: grads_per_s, bwd_fwd_ratio, unfused_grads_per_s, bytes_per_sample_fused/unfused",
         params: &["repeats", "chunks"],
-        support: Support::Cpu,
+        support: Support::CpuGpuF32,
         run: op_grad_perf,
     },
 ];
 
-fn load(ctx: &OpCtx) -> Result<(Camera, RayGen, VolumeParams)> {
+pub(super) fn load(ctx: &OpCtx) -> Result<(Camera, RayGen, VolumeParams)> {
     let doc = ctx.scene()?;
     crate::scene::volume::parse(doc)?.build(doc)
 }
@@ -172,7 +172,7 @@ pub(super) fn upstream<F: Real>(w: &LossWeights) -> Upstream<F> {
 // ---------------------------------------------------------------------------
 // Probes.
 
-fn probe_spec(ctx: &OpCtx) -> Result<ProbeSpec> {
+pub(super) fn probe_spec(ctx: &OpCtx) -> Result<ProbeSpec> {
     let p: ProbeSpec = ctx.param_or("probes", ProbeSpec::default())?;
     if p.sigma > MAX_PROBES || p.color > MAX_PROBES {
         return Err(Error::invalid(
@@ -228,6 +228,9 @@ fn grad_in<F: Real>(ctx: &OpCtx, opt: DiffOptions) -> Result<Outputs> {
 }
 
 fn op_grad(ctx: &OpCtx) -> Result<Outputs> {
+    if ctx.backend == BackendKind::Gpu {
+        return super::volume_gpu_diff::grad(ctx);
+    }
     let opt = options(ctx)?;
     by_precision!(ctx, grad_in(ctx, opt))
 }
@@ -244,6 +247,9 @@ pub fn render_grads(ctx: &OpCtx, out: &mut Outputs) -> Result<()> {
         return Err(Error::NotSupported(
             "render --grad-from with --rays: gradients need camera rays (dcam)".into(),
         ));
+    }
+    if ctx.backend == BackendKind::Gpu {
+        return super::volume_gpu_diff::render_grads(ctx, out);
     }
     let (cam, gen, p) = load(ctx)?;
     let w = loss_weights(ctx, &gen)?;
@@ -400,5 +406,8 @@ fn perf_in<F: Real>(ctx: &OpCtx) -> Result<Outputs> {
 }
 
 fn op_grad_perf(ctx: &OpCtx) -> Result<Outputs> {
+    if ctx.backend == BackendKind::Gpu {
+        return super::volume_gpu_diff::perf(ctx);
+    }
     by_precision!(ctx, perf_in(ctx))
 }

@@ -80,7 +80,7 @@ pub fn f_diff_gpu(
     let (mut bound_sigma, mut bound_color) = (0.0f64, 0.0f64);
     for r in 0..n {
         let (t0, t1) = (rays.t0[r] as f64, rays.t1[r] as f64);
-        if !(t1 > t0) {
+        if t1 <= t0 {
             continue;
         }
         let g = up.rgb[r].map(|v| v.abs() as f64);
