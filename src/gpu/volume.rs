@@ -207,7 +207,7 @@ impl VolParams {
 }
 
 /// Checks what the kernels assume (finite, in-range, consistent sizes).
-fn validate(v: &VolumeInput) -> Result<()> {
+pub(super) fn validate(v: &VolumeInput) -> Result<()> {
     let at = "gpu volume input";
     let grid_ok = |g: &GpuGrid, ch: u64, what: &str| -> Result<()> {
         let n = g.n.iter().map(|&x| x as u64).product::<u64>() * ch;
@@ -275,7 +275,7 @@ pub(super) struct FieldBuffers {
 }
 
 impl FieldBuffers {
-    fn new(ctx: &GpuContext, v: &VolumeInput) -> Result<FieldBuffers> {
+    pub(super) fn new(ctx: &GpuContext, v: &VolumeInput) -> Result<FieldBuffers> {
         let none: &[f32] = &[];
         let slabs: Vec<f32> = match v.field {
             GpuField::Slabs { breaks, sigma, .. } => breaks.iter().chain(sigma).copied().collect(),
@@ -304,7 +304,7 @@ const LOOP_ITERS_PER_SAMPLE: u64 = 16;
 /// Refuses plans whose longest ray could exceed the driver's loop cap
 /// (see [`GpuContext::max_loop_iterations`]) instead of silently cutting
 /// rays short. The longest ray is bounded by the box diagonal.
-fn check_loop_cap(ctx: &GpuContext, gen: &RayGen, v: &VolumeInput) -> Result<()> {
+pub(super) fn check_loop_cap(ctx: &GpuContext, gen: &RayGen, v: &VolumeInput) -> Result<()> {
     let Some(cap) = ctx.max_loop_iterations() else {
         return Ok(());
     };

@@ -28,6 +28,7 @@ pub mod loss;
 pub mod occupancy;
 pub mod referee;
 pub mod sample;
+pub mod session;
 
 use std::time::Instant;
 

@@ -131,7 +131,7 @@ fn compose_param(ctx: &OpCtx) -> Result<Compose> {
     }
 }
 
-fn image_outputs<F: Real>(img: &Image<F>, out: &mut Outputs) -> Result<()> {
+pub(super) fn image_outputs<F: Real>(img: &Image<F>, out: &mut Outputs) -> Result<()> {
     let s = [img.height, img.width];
     out.tensor("rgb", Tensor::real3(&s, &img.rgb)?);
     out.tensor("trans", Tensor::real(&s, img.trans.clone())?);

@@ -88,6 +88,13 @@ pub const OPS: &[OpEntry] = &[
         run: op_grad_closed_form,
     },
     OpEntry {
+        name: "volume.session",
+        doc: "GPU steady-state frames (one submit: f_fused + f_img) vs per-stage submits: image tensors of the last frame; session/stages quartiles, session_speedup",
+        params: &["frames"],
+        support: Support::GpuF32,
+        run: super::volume_gpu_diff::session,
+    },
+    OpEntry {
         name: "volume.grad_perf",
         doc: "backward medians: grads_per_s, bwd_fwd_ratio, unfused_grads_per_s, bytes_per_sample_fused/unfused",
         params: &["repeats", "chunks"],

@@ -3,18 +3,21 @@
 //! tensors as the CPU rows. `params.reduce`: `fixed` (default: the
 //! deterministic fixed-point reduction) or `float_atomic` (the f32
 //! compare-exchange fast path). Metrics add `forward_time_s` (the unfused
-//! forward the backward walks) and `bwd_fwd_ratio`.
+//! forward the backward walks) and `bwd_fwd_ratio`. Also `volume.session`
+//! (GPU only): steady-state frames against per-stage submits.
 
+use super::volume::image_outputs;
 use super::volume_diff::{load, loss_weights, probe_spec, upstream};
 use super::OpCtx;
 use crate::error::{Error, Result};
 use crate::gpu::GpuContext;
 use crate::real::Precision;
-use crate::stats::summary::median;
+use crate::stats::summary::{median, quartiles};
 use crate::tensor::Outputs;
 use crate::volume::diff::gpu::{f_diff_gpu, GpuDiff};
 use crate::volume::grad_outputs::grad_outputs;
 use crate::volume::loss::ProbeSpec;
+use crate::volume::session::latency;
 
 fn run(ctx: &OpCtx, float_atomic: bool) -> Result<(GpuDiff, crate::volume::VolumeParams)> {
     if ctx.precision != Precision::F32 {
@@ -95,5 +98,44 @@ pub fn perf(ctx: &OpCtx) -> Result<Outputs> {
     out.metric("float_atomic_grads_per_s", s / ta);
     out.metric("fixed_over_float_atomic", tb / ta);
     out.counter("samples", samples);
+    Ok(out)
+}
+
+/// `volume.session` (GPU): `params.frames` steady-state frames (one submit
+/// each) interleaved with as many per-stage renders; the last frame's image
+/// tensors, and per-frame seconds as quartiles (`session_q1_s`,
+/// `session_median_s`, `session_q3_s`, `stages_*`) and `session_speedup`
+/// (per-stage median over session median).
+pub fn session(ctx: &OpCtx) -> Result<Outputs> {
+    if ctx.precision != Precision::F32 {
+        return Err(Error::NotSupported(format!(
+            "{}: the GPU computes in f32 only",
+            ctx.case_id
+        )));
+    }
+    let frames: usize = ctx.param_or("frames", 10)?;
+    if frames == 0 || frames > 1000 {
+        return Err(Error::invalid(
+            format!("{} params.frames", ctx.case_id),
+            "must be in 1..=1000",
+        ));
+    }
+    let (cam, gen, p) = load(ctx)?;
+    let l = latency(GpuContext::get()?, &cam, &gen, &p, frames, &ctx.budget)?;
+    let mut out = Outputs::default();
+    image_outputs(&l.image, &mut out)?;
+    let (sm, sq1, sq3) = quartiles(&l.session_s);
+    let (pm, pq1, pq3) = quartiles(&l.stages_s);
+    for (k, v) in [
+        ("session_q1_s", sq1),
+        ("session_median_s", sm),
+        ("session_q3_s", sq3),
+        ("stages_q1_s", pq1),
+        ("stages_median_s", pm),
+        ("stages_q3_s", pq3),
+        ("session_speedup", pm / sm.max(1e-12)),
+    ] {
+        out.metric(k, v);
+    }
     Ok(out)
 }
