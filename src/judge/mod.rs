@@ -31,6 +31,9 @@ pub mod junit;
 pub mod load;
 pub mod manifest;
 pub mod measure;
+pub mod op;
+#[cfg(test)]
+mod op_tests;
 pub mod ops;
 pub mod outlock;
 pub mod perf;
