@@ -6,13 +6,18 @@
 //                  CPU twin: src/volume/sample.rs `f_samp` / `walk_lattice`.
 //   f_int          per-ray integration of the packed samples, persisting alpha
 //                  and log T. CPU twin: src/volume/integrate.rs `integrate_ray`.
+//   f_img          per-pixel image of the region from one camera ray a pixel
+//                  (the session's frame, src/gpu/volume_session.rs).
+//                  CPU twin: src/volume/compose.rs `f_img` (one ray a pixel).
 // Fields: src/volume/field/mod.rs `Field::sigma`, `ColorField::color`,
 // `Grid::trilinear` (lerp x, then y, then z); occupancy:
 // src/volume/occupancy.rs `Occupancy::occupied`; integration state:
 // src/volume/integrate.rs `RayAcc` (Kahan sums, same order).
 // Parity case: TESTS/gpu/manifest.yaml `gpu_vol_*_parity` (GPU f32 vs CPU
 // f64 per output), `gpu_vol_*_unfused_parity`, `gpu_vol_deterministic`.
-// Host side: src/gpu/volume.rs (structs `VolParams`, `GpuRayOut`, keep in sync).
+// Parity case for f_img: TESTS/volume/manifest_gpu_diff.yaml
+// `gpu_vol_session_frame_equals_stages` (memcmp against the host f_img).
+// Host side: src/gpu/volume.rs (structs `VolParams`, `GpuRayOut`, `GpuPixel`, keep in sync).
 
 // Field kind codes: src/volume/field/mod.rs `FieldKind`.
 const FIELD_CONSTANT: u32 = 0u;
@@ -94,11 +99,27 @@ struct RayOut {
 @group(0) @binding(7) var<storage, read_write> counts: array<vec4<u32>>;
 // Sample offsets of the batch's rays (off[0] = 0), n + 1 entries.
 @group(0) @binding(8) var<storage, read> off: array<u32>;
-// Per sample: (t, dt, sigma, ray id as bits) and (r, g, b, 0).
+// Per sample: (t, dt, sigma, ray id as bits) and (r, g, b, lattice index k
+// as bits; the backward's t0/t1 dependence, kernels/volume_diff.wgsl).
 @group(0) @binding(9) var<storage, read_write> samp0: array<vec4<f32>>;
 @group(0) @binding(10) var<storage, read_write> samp1: array<vec4<f32>>;
 // Per sample: (alpha, log T before the sample).
 @group(0) @binding(11) var<storage, read_write> persist: array<vec2<f32>>;
+// f_img: one pixel of the region each.
+@group(0) @binding(16) var<storage, read_write> image: array<Pixel>;
+
+struct Pixel {
+    r: f32,
+    g: f32,
+    b: f32,
+    trans: f32,
+    logtrans: f32,
+    depth: f32,
+    opacity: f32,
+    nsamples: u32,
+    hit: u32,
+    _pad: u32,
+}
 
 // ---- fields ----------------------------------------------------------------
 
@@ -523,7 +544,7 @@ fn f_samp_fill(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workg
             continue;
         }
         samp0[m] = vec4<f32>(s.t, s.h, sigma_at(x, &unstable), bitcast<f32>(V.ray_base + j));
-        samp1[m] = vec4<f32>(color_at(x), 0.0);
+        samp1[m] = vec4<f32>(color_at(x), bitcast<f32>(k));
         m += 1u;
     }
     if (unstable) {
@@ -562,4 +583,28 @@ fn f_int(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups)
     }
     // Pixel ids are the region order's (the host knows them).
     ray_out[V.ray_base + j] = acc_finish(acc, flags, counts[j].z, 0u);
+}
+
+// ---- f_img ------------------------------------------------------------------------
+// Camera rays: ray i of the region lands in pixel i of the region, so each
+// pixel takes its one ray (src/volume/compose.rs `Image::add` with count 1).
+
+@compute @workgroup_size(64)
+fn f_img(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
+    let i = linear_id(gid, nwg, 64u);
+    if (i >= C.n) {
+        return;
+    }
+    let r = ray_out[i];
+    var p: Pixel;
+    p.r = r.r;
+    p.g = r.g;
+    p.b = r.b;
+    p.trans = r.trans;
+    p.logtrans = r.log_trans;
+    p.depth = r.depth;
+    p.opacity = r.opacity;
+    p.nsamples = min(r.n, 2147483647u);
+    p.hit = r.flags & FLAG_HIT;
+    image[i] = p;
 }

@@ -1,6 +1,8 @@
 //! The kernel registry: every `kernels/*.wgsl` file, loaded with
-//! `include_str!` and `kernels/common.wgsl` prepended, compiled once per
-//! process into compute pipelines (memoised by kernel and entry point).
+//! `include_str!` and `kernels/common.wgsl` prepended (and, for a kernel
+//! that extends another, that kernel's file: `volume_diff` reads the
+//! forward's fields and buffers from `volume`), compiled once per process
+//! into compute pipelines (memoised by kernel and entry point).
 //!
 //! A unit test validates every file in `kernels/` with naga, listing the
 //! directory so a new file cannot be left out of [`KERNELS`].
@@ -14,11 +16,13 @@ use crate::error::{Error, Result};
 /// `kernels/common.wgsl`, prepended to every kernel.
 pub const COMMON: &str = include_str!("../../kernels/common.wgsl");
 
-/// One kernel file: its name (file stem) and its own text (without common).
+/// One kernel file: its name (file stem), its own text (without common),
+/// and the kernel it extends (prepended after common), if any.
 #[derive(Clone, Copy, Debug)]
 pub struct Kernel {
     pub name: &'static str,
     pub text: &'static str,
+    pub base: Option<&'static str>,
 }
 
 macro_rules! kernel {
@@ -26,6 +30,13 @@ macro_rules! kernel {
         Kernel {
             name: $name,
             text: include_str!(concat!("../../kernels/", $name, ".wgsl")),
+            base: None,
+        }
+    };
+    ($name:literal extends $base:literal) => {
+        Kernel {
+            base: Some($base),
+            ..kernel!($name)
         }
     };
 }
@@ -36,21 +47,31 @@ pub const KERNELS: &[Kernel] = &[
     kernel!("rng"),
     kernel!("expm1"),
     kernel!("volume"),
+    kernel!("volume_diff" extends "volume"),
     kernel!("voxels"),
     kernel!("transport"),
     kernel!("pathtrace"),
 ];
 
-/// The full source of kernel `name`: common.wgsl, then the file.
-pub fn source(name: &str) -> Result<String> {
-    let k = KERNELS.iter().find(|k| k.name == name).ok_or_else(|| {
+fn find(name: &str) -> Result<&'static Kernel> {
+    KERNELS.iter().find(|k| k.name == name).ok_or_else(|| {
         Error::invalid(
             "kernel",
             format!("no kernel {name:?} in kernels/ (src/gpu/kernels.rs KERNELS)"),
         )
-    })?;
+    })
+}
+
+/// The full source of kernel `name`: common.wgsl, the kernel it extends
+/// (if any), then the file.
+pub fn source(name: &str) -> Result<String> {
+    let k = find(name)?;
+    let base = match k.base {
+        Some(b) => format!("// ---- kernels/{b}.wgsl ----\n{}\n", find(b)?.text),
+        None => String::new(),
+    };
     Ok(format!(
-        "{COMMON}\n// ---- kernels/{}.wgsl ----\n{}",
+        "{COMMON}\n{base}// ---- kernels/{}.wgsl ----\n{}",
         k.name, k.text
     ))
 }

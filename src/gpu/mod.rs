@@ -17,6 +17,8 @@ pub mod pathtrace;
 pub mod rays;
 pub mod transport;
 pub mod volume;
+pub mod volume_diff;
+pub mod volume_session;
 pub mod voxels;
 
 pub use context::{adapters, describe, AdapterSummary, GpuContext};

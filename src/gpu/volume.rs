@@ -148,7 +148,7 @@ fn v4(a: [f32; 3]) -> [f32; 4] {
 }
 
 impl VolParams {
-    fn new(v: &VolumeInput) -> VolParams {
+    pub(super) fn new(v: &VolumeInput) -> VolParams {
         let mut p = VolParams::zeroed();
         p.background = v4(v.background);
         p.color_const = v4(v.color);
@@ -207,7 +207,7 @@ impl VolParams {
 }
 
 /// Checks what the kernels assume (finite, in-range, consistent sizes).
-fn validate(v: &VolumeInput) -> Result<()> {
+pub(super) fn validate(v: &VolumeInput) -> Result<()> {
     let at = "gpu volume input";
     let grid_ok = |g: &GpuGrid, ch: u64, what: &str| -> Result<()> {
         let n = g.n.iter().map(|&x| x as u64).product::<u64>() * ch;
@@ -267,15 +267,15 @@ fn validate(v: &VolumeInput) -> Result<()> {
 
 /// The read-only buffers every volume kernel may bind: slabs, density
 /// grid, colour grid, occupancy (16-byte placeholders where unused).
-struct FieldBuffers {
-    slabs: wgpu::Buffer,
-    sgrid: wgpu::Buffer,
-    cgrid: wgpu::Buffer,
-    occ: wgpu::Buffer,
+pub(super) struct FieldBuffers {
+    pub slabs: wgpu::Buffer,
+    pub sgrid: wgpu::Buffer,
+    pub cgrid: wgpu::Buffer,
+    pub occ: wgpu::Buffer,
 }
 
 impl FieldBuffers {
-    fn new(ctx: &GpuContext, v: &VolumeInput) -> Result<FieldBuffers> {
+    pub(super) fn new(ctx: &GpuContext, v: &VolumeInput) -> Result<FieldBuffers> {
         let none: &[f32] = &[];
         let slabs: Vec<f32> = match v.field {
             GpuField::Slabs { breaks, sigma, .. } => breaks.iter().chain(sigma).copied().collect(),
@@ -304,7 +304,7 @@ const LOOP_ITERS_PER_SAMPLE: u64 = 16;
 /// Refuses plans whose longest ray could exceed the driver's loop cap
 /// (see [`GpuContext::max_loop_iterations`]) instead of silently cutting
 /// rays short. The longest ray is bounded by the box diagonal.
-fn check_loop_cap(ctx: &GpuContext, gen: &RayGen, v: &VolumeInput) -> Result<()> {
+pub(super) fn check_loop_cap(ctx: &GpuContext, gen: &RayGen, v: &VolumeInput) -> Result<()> {
     let Some(cap) = ctx.max_loop_iterations() else {
         return Ok(());
     };
@@ -335,7 +335,7 @@ pub struct GpuTimes {
 }
 
 /// Rays of the region of `gen` in region order, as `u32` count.
-fn ray_count(gen: &RayGen) -> Result<u32> {
+pub(super) fn ray_count(gen: &RayGen) -> Result<u32> {
     let r = gen.region();
     r.width
         .checked_mul(r.height)
@@ -399,6 +399,50 @@ pub struct Unfused {
     pub times: GpuTimes,
 }
 
+/// One batch of the unfused chain after its `f_samp_fill` and `f_int` ran:
+/// what a later pass over the same rays binds (`kernels/volume.wgsl`
+/// bindings), with the batch's rays `start..end` of the region.
+pub(super) struct Batch<'a> {
+    pub cu: &'a wgpu::Buffer,
+    pub fb: &'a FieldBuffers,
+    /// The batch's `VolParams` (ray_base = start, ray_count = end - start).
+    pub bu: &'a wgpu::Buffer,
+    pub results: &'a wgpu::Buffer,
+    pub off: &'a wgpu::Buffer,
+    pub samp0: &'a wgpu::Buffer,
+    pub samp1: &'a wgpu::Buffer,
+    pub persist: &'a wgpu::Buffer,
+    pub start: u32,
+    pub end: u32,
+}
+
+/// Batches of whole rays whose samples fit `max_samples`, each starting at
+/// a multiple of `align` rays (the last may end anywhere).
+fn plan_batches(off: &[u64], max_samples: u64, align: u32) -> Result<Vec<(u32, u32)>> {
+    let n = (off.len() - 1) as u32;
+    let mut out = Vec::new();
+    let mut start = 0u32;
+    while start < n {
+        let mut end = start;
+        while end < n && off[end as usize + 1] - off[start as usize] <= max_samples {
+            end += 1;
+        }
+        if end < n {
+            end -= (end - start) % align;
+        }
+        if end == start {
+            return Err(Error::NotSupported(format!(
+                "unfused chain: rays {start}..{} have {} samples, over the {max_samples} one binding holds",
+                (start + align).min(n),
+                off[(start + align).min(n) as usize] - off[start as usize]
+            )));
+        }
+        out.push((start, end));
+        start = end;
+    }
+    Ok(out)
+}
+
 /// The unfused chain on the GPU: `f_samp_count` over all rays, offsets
 /// scanned on the host, then per batch (rays whose samples fit the binding
 /// limit and `max_batch_bytes`) `f_samp_fill` and `f_int` in one submit.
@@ -410,6 +454,22 @@ pub fn unfused(
     v: &VolumeInput,
     budget: &MemBudget,
     keep: bool,
+) -> Result<Unfused> {
+    unfused_with(ctx, cam, gen, v, budget, keep, 1, |_| Ok(()))
+}
+
+/// [`unfused`], calling `after` on every batch once its `f_int` ran,
+/// batches aligned to `align` rays.
+#[allow(clippy::too_many_arguments)]
+pub(super) fn unfused_with(
+    ctx: &GpuContext,
+    cam: &Camera,
+    gen: &RayGen,
+    v: &VolumeInput,
+    budget: &MemBudget,
+    keep: bool,
+    align: u32,
+    mut after: impl FnMut(&Batch) -> Result<()>,
 ) -> Result<Unfused> {
     gen.validate()?;
     cam.validate()?;
@@ -460,18 +520,7 @@ pub fn unfused(
         .max(1);
     let results = storage_out(ctx, "unfused results", n as u64 * ray_bytes)?;
     let mut persist = Vec::with_capacity(if keep { total as usize } else { 0 });
-    let mut start = 0u32;
-    while start < n {
-        let mut end = start;
-        while end < n && off[end as usize + 1] - off[start as usize] <= max_samples {
-            end += 1;
-        }
-        if end == start {
-            return Err(Error::NotSupported(format!(
-                "unfused chain: ray {start} alone has {} samples, over the {max_samples} one binding holds",
-                off[start as usize + 1] - off[start as usize]
-            )));
-        }
+    for (start, end) in plan_batches(&off, max_samples, align)? {
         let m = off[end as usize] - off[start as usize];
         let local_off: Vec<u32> = (start..=end)
             .map(|r| (off[r as usize] - off[start as usize]) as u32)
@@ -527,7 +576,18 @@ pub fn unfused(
         if keep {
             persist.extend(rb.take::<[f32; 2]>(0, m as usize)?);
         }
-        start = end;
+        after(&Batch {
+            cu: &cu,
+            fb: &fb,
+            bu: &bu,
+            results: &results,
+            off: &offb,
+            samp0: &s0,
+            samp1: &s1,
+            persist: &pe,
+            start,
+            end,
+        })?;
     }
     let rb = run(ctx, "unfused readback", &[], &[&results])?;
     times.int += rb.gpu_s;

@@ -19,7 +19,7 @@ use super::compose::{f_img, Compose};
 use super::field::{ColorField, Field, Grid, Oob};
 use super::integrate::RayOut;
 use super::occupancy::Occupancy;
-use super::sample::{Sampling, TransPath};
+use super::sample::{March, Sampling, TransPath};
 use super::{Chain, Counters, Render, Timings, VolumeParams};
 
 fn gpu_grid<'a>(g: &'a Grid<f32>, ch: usize, what: &str) -> Result<GpuGrid<'a>> {
@@ -50,6 +50,104 @@ pub struct GpuRender {
     pub stable: Vec<u8>,
 }
 
+/// A scene's fields rounded to f32 as the CPU f32 render rounds them, and
+/// its march: what [`GpuScene::input`] lends the GPU layer.
+pub(super) struct GpuScene {
+    pub field: Field<f32>,
+    pub color: ColorField<f32>,
+    pub occ: Option<Occupancy<f32>>,
+    pub m: March<f32>,
+}
+
+impl GpuScene {
+    pub(super) fn new(params: &VolumeParams, gen: &RayGen, budget: &MemBudget) -> Result<GpuScene> {
+        let m = params.march::<f32>();
+        m.validate()?;
+        Ok(GpuScene {
+            field: params.field.to_real::<f32>(),
+            color: params.color.to_real::<f32>(),
+            occ: match params.occupancy {
+                0 => None,
+                r => Some(Occupancy::<f32>::build(
+                    &params.field,
+                    &gen.aabb,
+                    r,
+                    budget,
+                )?),
+            },
+            m,
+        })
+    }
+
+    /// The GPU layer's typed input (refused where no kernel reads the field).
+    pub(super) fn input(&self) -> Result<VolumeInput<'_>> {
+        let gfield = match &self.field {
+            Field::Constant { s } => GpuField::Constant { s: *s },
+            Field::Slabs {
+                axis,
+                breaks,
+                sigma,
+            } => GpuField::Slabs {
+                axis: *axis as u32,
+                breaks,
+                sigma,
+            },
+            Field::Gaussian {
+                amplitude,
+                mean,
+                inv_two_var,
+            } => GpuField::Gaussian {
+                amplitude: *amplitude,
+                mean: *mean,
+                inv_two_var: *inv_two_var,
+            },
+            Field::Shell { centre, r0, r1, s } => GpuField::Shell {
+                centre: *centre,
+                r0: *r0,
+                r1: *r1,
+                s: *s,
+            },
+            Field::Linear { a, g } => GpuField::Linear { a: *a, g: *g },
+            Field::Grid(g) => GpuField::Grid(gpu_grid(g, 1, "density grid")?),
+            Field::HashMlp(_) => {
+                return Err(Error::NotSupported(
+                    "hash_mlp field: no GPU kernel (CPU only, issue 18)".into(),
+                ))
+            }
+        };
+        let (cconst, cgrid) = match &self.color {
+            ColorField::Constant(c) => (*c, None),
+            ColorField::Grid(g) => ([0.0; 3], Some(gpu_grid(g, 3, "colour grid")?)),
+            ColorField::Mlp => {
+                return Err(Error::NotSupported(
+                    "mlp colour: no GPU kernel (CPU only, issue 18)".into(),
+                ))
+            }
+        };
+        let m = &self.m;
+        Ok(VolumeInput {
+            field: gfield,
+            color: cconst,
+            color_grid: cgrid,
+            dt: m.dt,
+            max_steps: m.max_steps,
+            early_stop: m.early_stop,
+            stratified: match m.sampling {
+                Sampling::Fixed => None,
+                Sampling::Stratified { seed } => Some(seed),
+            },
+            log_path: m.path == TransPath::Log,
+            background: m.background,
+            occupancy: self.occ.as_ref().map(|o| GpuOccupancy {
+                res: o.res,
+                bits: &o.bits,
+                bmin: o.bmin,
+                inv_cell: o.inv_cell,
+            }),
+        })
+    }
+}
+
 /// Renders `params` on the GPU with the fused or unfused chain.
 pub fn render_gpu(
     ctx: &GpuContext,
@@ -60,82 +158,9 @@ pub fn render_gpu(
     compose: Compose,
     budget: &MemBudget,
 ) -> Result<GpuRender> {
-    let m = params.march::<f32>();
-    m.validate()?;
-    let field = params.field.to_real::<f32>();
-    let color = params.color.to_real::<f32>();
-    let occ = match params.occupancy {
-        0 => None,
-        r => Some(Occupancy::<f32>::build(
-            &params.field,
-            &gen.aabb,
-            r,
-            budget,
-        )?),
-    };
-    let gfield = match &field {
-        Field::Constant { s } => GpuField::Constant { s: *s },
-        Field::Slabs {
-            axis,
-            breaks,
-            sigma,
-        } => GpuField::Slabs {
-            axis: *axis as u32,
-            breaks,
-            sigma,
-        },
-        Field::Gaussian {
-            amplitude,
-            mean,
-            inv_two_var,
-        } => GpuField::Gaussian {
-            amplitude: *amplitude,
-            mean: *mean,
-            inv_two_var: *inv_two_var,
-        },
-        Field::Shell { centre, r0, r1, s } => GpuField::Shell {
-            centre: *centre,
-            r0: *r0,
-            r1: *r1,
-            s: *s,
-        },
-        Field::Linear { a, g } => GpuField::Linear { a: *a, g: *g },
-        Field::Grid(g) => GpuField::Grid(gpu_grid(g, 1, "density grid")?),
-        Field::HashMlp(_) => {
-            return Err(Error::NotSupported(
-                "hash_mlp field: no GPU kernel (CPU only, issue 18)".into(),
-            ))
-        }
-    };
-    let (cconst, cgrid) = match &color {
-        ColorField::Constant(c) => (*c, None),
-        ColorField::Grid(g) => ([0.0; 3], Some(gpu_grid(g, 3, "colour grid")?)),
-        ColorField::Mlp => {
-            return Err(Error::NotSupported(
-                "mlp colour: no GPU kernel (CPU only, issue 18)".into(),
-            ))
-        }
-    };
-    let input = VolumeInput {
-        field: gfield,
-        color: cconst,
-        color_grid: cgrid,
-        dt: m.dt,
-        max_steps: m.max_steps,
-        early_stop: m.early_stop,
-        stratified: match m.sampling {
-            Sampling::Fixed => None,
-            Sampling::Stratified { seed } => Some(seed),
-        },
-        log_path: m.path == TransPath::Log,
-        background: m.background,
-        occupancy: occ.as_ref().map(|o| GpuOccupancy {
-            res: o.res,
-            bits: &o.bits,
-            bmin: o.bmin,
-            inv_cell: o.inv_cell,
-        }),
-    };
+    let scene = GpuScene::new(params, gen, budget)?;
+    let input = scene.input()?;
+    let m = &scene.m;
     let mut tm = Timings::default();
     let out: Vec<GpuRayOut> = match chain {
         Chain::Fused => {

@@ -29,6 +29,7 @@ pub mod occupancy;
 pub mod outputs;
 pub mod referee;
 pub mod sample;
+pub mod session;
 
 use std::time::Instant;
 

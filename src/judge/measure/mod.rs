@@ -8,6 +8,7 @@
 pub mod pathtrace;
 pub mod transport;
 pub mod volume;
+pub mod volume_gpu;
 pub mod voxels;
 
 use std::time::Instant;

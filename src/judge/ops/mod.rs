@@ -39,6 +39,7 @@ mod transport;
 mod volume;
 mod volume_diff;
 mod volume_fit;
+mod volume_gpu_diff;
 mod volume_hash;
 mod voxels;
 

@@ -11,7 +11,8 @@
 
 use std::path::Path;
 
-use super::OpCtx;
+use super::volume_gpu_diff::session as op_session;
+use super::{BackendKind, OpCtx};
 use crate::camera::Camera;
 use crate::error::{Error, Result};
 use crate::judge::measure::volume as measure;
@@ -27,19 +28,21 @@ use crate::volume::referee::finite_diff::grad_fd;
 use crate::volume::{Chain, VolumeParams};
 
 ops! {
-    "volume.grad" Cpu op_grad ["chain", "reduce", "chunks", "per_sample", "probes", "w_seed", "w_const", "w_depth",
+    "volume.grad" CpuGpuF32 op_grad ["chain", "reduce", "chunks", "per_sample", "probes", "w_seed", "w_const", "w_depth",
         "w_opacity", "grad_from"]
-        "f_diff: dsigma, dcolor (grid nodes), dsigma_param, dcolor_const, dcam, dsigma_probe, dcolor_probe; params chain fused|unfused, reduce sorted|chunked";
+        "f_diff: dsigma, dcolor (grid nodes), dsigma_param, dcolor_const, dcam, dsigma_probe, dcolor_probe; params chain fused|unfused, reduce sorted|chunked (GPU: fixed|float_atomic)";
     "volume.grad_fd" Any op_grad_fd ["probes", "w_seed", "w_const", "w_depth", "w_opacity", "grad_from", "h_sigma",
         "h_color", "h_pose"]
         "FD referee (f64 central differences, early stop and skipping off): dsigma_probe, dcolor_probe, dsigma_param, dcolor_const, dcam";
     "volume.grad_closed_form" Any op_grad_closed_form ["w_seed", "w_const"]
         "closed-form gradients: dsigma_param (constant, slabs), dcolor_const, dcam (gaussian blob, continuum)";
-    "volume.grad_perf" Cpu op_grad_perf ["repeats", "chunks"]
-        "backward medians: grads_per_s, bwd_fwd_ratio, unfused_grads_per_s, bytes_per_sample_fused/unfused";
+    "volume.grad_perf" CpuGpuF32 op_grad_perf ["repeats", "chunks"]
+        "backward medians: grads_per_s, bwd_fwd_ratio, unfused_grads_per_s, bytes_per_sample_fused/unfused (GPU: float_atomic_grads_per_s, fixed_over_float_atomic)";
+    "volume.session" GpuF32 op_session ["frames"]
+        "GPU steady-state frames (one submit: f_fused + f_img) vs per-stage submits: the last frame's image; session/stages quartiles, session_speedup";
 }
 
-fn load(ctx: &OpCtx) -> Result<(Camera, RayGen, VolumeParams)> {
+pub(super) fn load(ctx: &OpCtx) -> Result<(Camera, RayGen, VolumeParams)> {
     let doc = ctx.scene()?;
     crate::scene::volume::parse(doc)?.build(doc)
 }
@@ -103,7 +106,7 @@ pub(super) fn options(ctx: &OpCtx) -> Result<DiffOptions> {
     })
 }
 
-fn probe_spec(ctx: &OpCtx) -> Result<ProbeSpec> {
+pub(super) fn probe_spec(ctx: &OpCtx) -> Result<ProbeSpec> {
     let p: ProbeSpec = ctx.param_or("probes", ProbeSpec::default())?;
     if p.sigma > MAX_PROBES || p.color > MAX_PROBES {
         return Err(ctx.bad(
@@ -127,6 +130,9 @@ fn grad_in<F: Real>(ctx: &OpCtx, opt: DiffOptions) -> Result<Outputs> {
 }
 
 fn op_grad(ctx: &OpCtx) -> Result<Outputs> {
+    if ctx.backend == BackendKind::Gpu {
+        return super::volume_gpu_diff::grad(ctx);
+    }
     let opt = options(ctx)?;
     by_precision!(ctx, grad_in(ctx, opt))
 }
@@ -142,6 +148,9 @@ pub fn render_grads(ctx: &OpCtx, out: &mut Outputs) -> Result<()> {
     if ctx.rays.is_some() {
         let why = "render --grad-from with --rays: gradients need camera rays (dcam)";
         return Err(Error::NotSupported(why.into()));
+    }
+    if ctx.backend == BackendKind::Gpu {
+        return super::volume_gpu_diff::render_grads(ctx, out);
     }
     let (cam, gen, p) = load(ctx)?;
     let w = loss_weights(ctx, &gen)?;
@@ -221,5 +230,8 @@ fn perf_in<F: Real>(ctx: &OpCtx) -> Result<Outputs> {
 }
 
 fn op_grad_perf(ctx: &OpCtx) -> Result<Outputs> {
+    if ctx.backend == BackendKind::Gpu {
+        return super::volume_gpu_diff::perf(ctx);
+    }
     by_precision!(ctx, perf_in(ctx))
 }

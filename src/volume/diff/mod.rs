@@ -55,6 +55,7 @@
 
 mod camera;
 mod field_grad;
+pub mod gpu;
 mod pass;
 mod reduce;
 mod walk;
