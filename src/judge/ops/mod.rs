@@ -27,6 +27,7 @@ mod selftest;
 mod transport;
 mod transport_gpu;
 mod transport_kerr;
+mod transport_perf;
 mod volume;
 mod volume_diff;
 mod volume_fit;
@@ -211,6 +212,7 @@ pub fn table() -> impl Iterator<Item = &'static OpEntry> {
         pathtrace_bsdf::OPS,
         transport::OPS,
         transport_kerr::OPS,
+        transport_perf::OPS,
         transport_gpu::OPS,
         voxels::OPS,
         voxels_dag::OPS,
