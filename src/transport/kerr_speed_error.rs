@@ -30,6 +30,15 @@ pub fn probes(img: &KerrImage, n: usize, offsets: &[f64]) -> Result<Vec<([f64; 2
             "the Kerr speed-error sweep needs the distant observer",
         ));
     };
+    if offsets.is_empty() || !offsets.iter().all(|d| *d > 0.0 && d.is_finite()) {
+        return Err(Error::invalid(
+            "offsets",
+            "need at least one offset, each > 0 and finite",
+        ));
+    }
+    if n < 2 {
+        return Err(Error::invalid("points", "need at least 2 curve points"));
+    }
     let (m, a) = (img.kerr.mass, img.kerr.a);
     if a < 0.0 {
         return Err(Error::invalid(
@@ -38,7 +47,7 @@ pub fn probes(img: &KerrImage, n: usize, offsets: &[f64]) -> Result<Vec<([f64; 2
         ));
     }
     // The upper branch has `k` points from end to end.
-    let k = 4 * n.max(2);
+    let k = 4 * n;
     let poly = critical_curve(m, a, obs.theta_o, k);
     let mut out = Vec::new();
     for i in (2..k - 2).step_by(4) {

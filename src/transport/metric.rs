@@ -43,8 +43,11 @@ impl<F: Real> Spacetime<F> {
     fn radial(&self, r: F) -> Radial<F> {
         let (one, zero, two) = (F::one(), F::zero(), F::of(2.0));
         match *self {
-            Spacetime::Minkowski => {
-                let r2 = r * r;
+            Spacetime::Minkowski | Spacetime::Ellis { .. } => {
+                let r2 = match *self {
+                    Spacetime::Ellis { b0 } => b0 * b0 + r * r,
+                    _ => r * r,
+                };
                 Radial {
                     a: one,
                     da: zero,
@@ -67,18 +70,6 @@ impl<F: Real> Spacetime<F> {
                     db: df,
                     r2: r * r,
                     inv_r2: inv_r * inv_r,
-                    dr2: two * r,
-                }
-            }
-            Spacetime::Ellis { b0 } => {
-                let r2 = b0 * b0 + r * r;
-                Radial {
-                    a: one,
-                    da: zero,
-                    b: one,
-                    db: zero,
-                    r2,
-                    inv_r2: one / r2,
                     dr2: two * r,
                 }
             }
