@@ -15,7 +15,7 @@ use super::kerr::Kerr;
 use super::kerr_trace::{kerr_deflection, kerr_deflection_by, KerrDeflection};
 use super::metric::Spacetime;
 use super::referee_kernel::{deflection_referee, KerrReferee};
-use super::tasks::{deflection, Deflection};
+use super::tasks::{deflection, Task};
 use crate::budget::MemBudget;
 use crate::error::{Error, Result};
 use crate::judge::measure::timed;
@@ -44,15 +44,21 @@ fn best(rounds: usize, mut f: impl FnMut() -> Result<Run>) -> Result<(Run, f64, 
     ))
 }
 
-/// Runs the comparison for the Schwarzschild list `task` (mass `M`) and
-/// Kerr with spin `a` on the same impact parameters and radii.
+/// Runs the comparison for the Schwarzschild deflection list `task` (mass
+/// `M`) and Kerr with spin `a` on the same impact parameters and radii.
 pub fn compare_kernels(
-    task: &Deflection<f64>,
+    task: &Task<f64>,
     opt: &Options<f64>,
     budget: &MemBudget,
     a: f64,
     rounds: usize,
 ) -> Result<Outputs> {
+    let Task::Deflection(task) = task else {
+        return Err(Error::invalid(
+            "task",
+            "transport.perf_kernels needs a deflection scene",
+        ));
+    };
     let Spacetime::Schwarzschild { mass } = task.spacetime else {
         return Err(Error::invalid(
             "task.spacetime",

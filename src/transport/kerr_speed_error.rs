@@ -16,6 +16,7 @@
 use super::image::{render, ImageTask, KerrImage, Observer, Pixels};
 use super::integrate::{Options, StepLaw, Tier};
 use super::referee_kerr::critical_curve;
+use super::tasks::{Curved, Task};
 use crate::budget::MemBudget;
 use crate::error::{Error, Result};
 use crate::judge::measure::timed;
@@ -91,6 +92,26 @@ pub fn label(t: &Tier<f64>) -> String {
             StepLaw::Fixed { h } => format!("{} h {h}", t.name()),
         },
     }
+}
+
+/// The sweep of a `kerr_image` task, as outputs ([`to_outputs`], the
+/// smallest offset as the plot's floor).
+pub fn run(
+    task: &Task<f64>,
+    base: &Options<f64>,
+    tiers: &[Tier<f64>],
+    n: usize,
+    offsets: &[f64],
+    budget: &MemBudget,
+) -> Result<Outputs> {
+    let Task::Curved(Curved::Image(ImageTask::Kerr(img))) = task else {
+        return Err(Error::invalid(
+            "task",
+            "transport.kerr_speed_error needs a kerr_image scene",
+        ));
+    };
+    let floor = offsets.iter().fold(f64::INFINITY, |m, d| m.min(*d));
+    to_outputs(&sweep(img, base, tiers, n, offsets, budget)?, floor)
 }
 
 /// Traces the probes of `img` (Bardeen points `n`, `offsets`) with each
