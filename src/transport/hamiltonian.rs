@@ -38,6 +38,14 @@ pub trait Hamiltonian<F: Real, const N: usize>: Sync {
         a
     }
 
+    /// `(dy/dlambda, H)` at `y` in one pass. The RK4 loop takes a step's
+    /// first stage and the drift `|H|` of its start from one call at the
+    /// end of the step before; implementors share the metric terms between
+    /// the two (the default computes them apart).
+    fn rhs_h(&self, y: &[F; N]) -> ([F; N], F) {
+        (self.rhs(y), self.h(y))
+    }
+
     /// The local length scale that step laws multiply (`h = eta * scale`):
     /// 1 for GRIN media, `r` (Minkowski), `r - 2M` (Schwarzschild, the
     /// distance from the horizon), `sqrt(b0^2 + l^2)` (Ellis).

@@ -274,16 +274,27 @@ pub fn rk4_step<F: Real, const N: usize, H: Hamiltonian<F, N>>(
     y: &[F; N],
     h: F,
 ) -> [F; N] {
+    rk4_step_from(sys, y, &sys.rhs(y), h)
+}
+
+/// One classical RK4 step given its first stage `k1 = rhs(y)` (carried
+/// from the end of the step before by [`trace`]).
+#[inline]
+pub fn rk4_step_from<F: Real, const N: usize, H: Hamiltonian<F, N>>(
+    sys: &H,
+    y: &[F; N],
+    k1: &[F; N],
+    h: F,
+) -> [F; N] {
     let half = F::of(0.5) * h;
-    let k1 = sys.rhs(y);
-    let k2 = sys.rhs(&axpy(y, half, &k1));
+    let k2 = sys.rhs(&axpy(y, half, k1));
     let k3 = sys.rhs(&axpy(y, half, &k2));
     let k4 = sys.rhs(&axpy(y, h, &k3));
     lin(
         y,
         h,
         &[
-            (1.0 / 6.0, &k1),
+            (1.0 / 6.0, k1),
             (1.0 / 3.0, &k2),
             (1.0 / 3.0, &k3),
             (1.0 / 6.0, &k4),
@@ -531,6 +542,7 @@ pub fn trace<F: Real, const N: usize, H: Hamiltonian<F, N>>(
         _ => F::zero(),
     };
     let mut k1 = sys.rhs(&y0);
+    let is_rk4 = matches!(opt.tier, Tier::Rk4(_));
     let mut just_rejected = false;
     while out.steps < opt.max_steps {
         let y = out.y;
@@ -576,8 +588,11 @@ pub fn trace<F: Real, const N: usize, H: Hamiltonian<F, N>>(
                 k1 = k7;
                 (h, y5, emax)
             }
-            Tier::Rk4(l)
-            | Tier::Dopri5Fixed(l)
+            Tier::Rk4(l) => {
+                let h = l.h(sys.scale(&y));
+                (h, rk4_step_from(sys, &y, &k1, h), F::zero())
+            }
+            Tier::Dopri5Fixed(l)
             | Tier::Verlet(l)
             | Tier::Yoshida4(l)
             | Tier::ImplicitMidpoint(l) => {
@@ -626,9 +641,16 @@ pub fn trace<F: Real, const N: usize, H: Hamiltonian<F, N>>(
         for (g, e) in gs.iter_mut().zip(&events[..ne]) {
             *g = e.g(&y1);
         }
+        let h1 = if is_rk4 {
+            let (k, h1) = sys.rhs_h(&y1);
+            k1 = k;
+            h1
+        } else {
+            sys.h(&y1)
+        };
         out.y = y1;
         out.lambda += h;
-        out.h_drift = out.h_drift.max(sys.h(&y1).abs());
+        out.h_drift = out.h_drift.max(h1.abs());
         on_step(out.lambda, &out.y);
     }
     out.end = End::MaxSteps;

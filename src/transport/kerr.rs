@@ -65,43 +65,62 @@ pub fn kerr_h<F: Real>(m: F, a: F, y: &[F; 8]) -> F {
 /// carries Kerr (issue 17).
 #[inline]
 pub fn kerr_rhs<F: Real>(m: F, a: F, y: &[F; 8]) -> [F; 8] {
+    kerr_rhs_h(m, a, y).0
+}
+
+/// [`kerr_rhs`] and `H` in one pass: one radius (two square roots) and
+/// three divisions (`1/r`, `1/(r^2 + a^2)`, `1/(r^4 + a^2 z^2)`) per call;
+/// the per-stage referee ([`super::referee_kernel::KerrReferee`]) divides
+/// fifteen times and computes `H` apart.
+#[inline]
+pub fn kerr_rhs_h<F: Real>(m: F, a: F, y: &[F; 8]) -> ([F; 8], F) {
     let (x, yy, z) = (y[1], y[2], y[3]);
     let (pt, px, py, pz) = (y[4], y[5], y[6], y[7]);
     let two = F::of(2.0);
     let r = ks_radius(a, x, yy, z);
     let (r2, a2) = (r * r, a * a);
+    let inv_r = F::one() / r;
     let ra2 = r2 + a2;
-    let n = r2 * r2 + a2 * z * z;
-    let f = two * m * r2 * r / n;
-    let (lx, ly, lz) = ((r * x + a * yy) / ra2, (r * yy - a * x) / ra2, z / r);
+    let inv_ra2 = F::one() / ra2;
+    let inv_n = F::one() / (r2 * r2 + a2 * z * z);
+    let r3n = r2 * r * inv_n;
+    let f = two * m * r3n;
+    let (lx, ly, lz) = (
+        (r * x + a * yy) * inv_ra2,
+        (r * yy - a * x) * inv_ra2,
+        z * inv_r,
+    );
     let lpxy = lx * px + ly * py;
     let big_l = -pt + lpxy + lz * pz;
     // dr/dx_i.
-    let r3n = r2 * r / n;
-    let (rx, ry, rz) = (x * r3n, yy * r3n, z * r * ra2 / n);
+    let (rx, ry, rz) = (x * r3n, yy * r3n, z * r * ra2 * inv_n);
     // d_i f = f (3 r_i / r - (4 r^3 r_i + 2 a^2 z delta_iz) / n).
-    let k4 = F::of(4.0) * r2 * r / n;
-    let fx = f * (F::of(3.0) / r - k4) * rx;
-    let fy = f * (F::of(3.0) / r - k4) * ry;
-    let fz = f * ((F::of(3.0) / r - k4) * rz - two * a2 * z / n);
+    let k = F::of(3.0) * inv_r - F::of(4.0) * r3n;
+    let fx = f * k * rx;
+    let fy = f * k * ry;
+    let fz = f * (k * rz - two * a2 * z * inv_n);
     // sum_j p_j d_i l_j = r_i c + (diagonal terms).
     let q = x * px + yy * py;
-    let c = (q - two * r * lpxy) / ra2 - pz * z / r2;
-    let gx = rx * c + (r * px - a * py) / ra2;
-    let gy = ry * c + (r * py + a * px) / ra2;
-    let gz = rz * c + pz / r;
+    let c = (q - two * r * lpxy) * inv_ra2 - pz * z * inv_r * inv_r;
+    let gx = rx * c + (r * px - a * py) * inv_ra2;
+    let gy = ry * c + (r * py + a * px) * inv_ra2;
+    let gz = rz * c + pz * inv_r;
     let half_l2 = F::of(0.5) * big_l * big_l;
     let fl = f * big_l;
-    [
-        -pt + fl,
-        px - fl * lx,
-        py - fl * ly,
-        pz - fl * lz,
-        F::zero(),
-        half_l2 * fx + fl * gx,
-        half_l2 * fy + fl * gy,
-        half_l2 * fz + fl * gz,
-    ]
+    let h = F::of(0.5) * (-pt * pt + px * px + py * py + pz * pz) - f * half_l2;
+    (
+        [
+            -pt + fl,
+            px - fl * lx,
+            py - fl * ly,
+            pz - fl * lz,
+            F::zero(),
+            half_l2 * fx + fl * gx,
+            half_l2 * fy + fl * gy,
+            half_l2 * fz + fl * gz,
+        ],
+        h,
+    )
 }
 
 impl<F: Real> Kerr<F> {
@@ -162,6 +181,10 @@ impl<F: Real> Hamiltonian<F, 8> for Kerr<F> {
 
     fn rhs(&self, y: &[F; 8]) -> [F; 8] {
         kerr_rhs(self.mass, self.a, y)
+    }
+
+    fn rhs_h(&self, y: &[F; 8]) -> ([F; 8], F) {
+        kerr_rhs_h(self.mass, self.a, y)
     }
 
     /// The radius `r`: the chart is regular at the horizon, so the step law

@@ -9,6 +9,7 @@
 //! 1 = capture (`r` falls through the outer horizon `r_+`, located: the
 //! chart is regular there).
 
+use super::hamiltonian::Hamiltonian;
 use super::integrate::{trace, End, Event, EventKind, Options};
 use super::kerr::Kerr;
 use crate::real::Real;
@@ -64,6 +65,19 @@ pub fn trace_kerr<F: Real>(
     r_end: F,
     disk: Option<(F, F)>,
 ) -> KerrRay<F> {
+    trace_kerr_with(k, k, y0, opt, r_end, disk)
+}
+
+/// [`trace_kerr`] with the right-hand side of `sys` (`k` itself, or the
+/// per-stage referee kernel of [`super::referee_kernel`]).
+pub fn trace_kerr_with<F: Real, H: Hamiltonian<F, 8>>(
+    sys: &H,
+    k: &Kerr<F>,
+    y0: [F; 8],
+    opt: &Options<F>,
+    r_end: F,
+    disk: Option<(F, F)>,
+) -> KerrRay<F> {
     let mut ev = kerr_events(k, r_end);
     if disk.is_some() {
         for rising in [false, true] {
@@ -96,7 +110,7 @@ pub fn trace_kerr<F: Real>(
         };
         let drift = &mut out.drift;
         let sweep = &mut out.sweep;
-        let t = trace(k, y, &left, &ev, |_, s| {
+        let t = trace(sys, y, &left, &ev, |_, s| {
             let c = k.constants(s);
             for i in 0..3 {
                 let d = (c[i] - c0[i]).abs() / c0[i].abs().max(F::one());
@@ -160,6 +174,16 @@ pub fn kerr_deflection<F: Real>(
     task: &KerrDeflection,
     opt: &Options<F>,
 ) -> crate::error::Result<KerrDeflectionOut<F>> {
+    kerr_deflection_by(task, opt, |k| k)
+}
+
+/// [`kerr_deflection`] with the right-hand side `sys(k)` (`k` itself, or
+/// the per-stage referee kernel of [`super::referee_kernel`]).
+pub fn kerr_deflection_by<F: Real, H: Hamiltonian<F, 8>>(
+    task: &KerrDeflection,
+    opt: &Options<F>,
+    sys: fn(Kerr<F>) -> H,
+) -> crate::error::Result<KerrDeflectionOut<F>> {
     use crate::error::Error;
     let k = task.kerr;
     if !(k.mass > 0.0 && k.a.abs() <= k.mass) {
@@ -202,8 +226,9 @@ pub fn kerr_deflection<F: Real>(
             Ok(y.map(F::of))
         })
         .collect::<crate::error::Result<_>>()?;
+    let h = sys(kf);
     let rays = crate::parallel::par_collect("transport.kerr_deflection", starts.len(), |i| {
-        trace_kerr(&kf, starts[i], opt, F::of(task.r_end), None)
+        trace_kerr_with(&h, &kf, starts[i], opt, F::of(task.r_end), None)
     });
     let mut out = KerrDeflectionOut::default();
     for r in &rays {

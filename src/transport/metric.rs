@@ -25,48 +25,54 @@ pub enum Spacetime<F> {
     Ellis { b0: F },
 }
 
-/// `A, dA/dr, B, dB/dr, R2, dR2/dr` at radial coordinate `r`.
+/// `A, dA/dr, B, dB/dr, R2, 1/R2, dR2/dr` at radial coordinate `r`.
 struct Radial<F> {
     a: F,
     da: F,
     b: F,
     db: F,
     r2: F,
+    inv_r2: F,
     dr2: F,
 }
 
 impl<F: Real> Spacetime<F> {
+    /// The radial terms with two divisions at most (`1/r` and `1/f` for
+    /// Schwarzschild, `1/R2` otherwise): every stage of a step calls this.
+    #[inline]
     fn radial(&self, r: F) -> Radial<F> {
         let (one, zero, two) = (F::one(), F::zero(), F::of(2.0));
         match *self {
-            Spacetime::Minkowski => Radial {
-                a: one,
-                da: zero,
-                b: one,
-                db: zero,
-                r2: r * r,
-                dr2: two * r,
-            },
-            Spacetime::Schwarzschild { mass } => {
-                let f = one - two * mass / r;
-                let df = two * mass / (r * r);
+            Spacetime::Minkowski | Spacetime::Ellis { .. } => {
+                let r2 = match *self {
+                    Spacetime::Ellis { b0 } => b0 * b0 + r * r,
+                    _ => r * r,
+                };
                 Radial {
-                    a: one / f,
-                    da: -df / (f * f),
-                    b: f,
-                    db: df,
-                    r2: r * r,
+                    a: one,
+                    da: zero,
+                    b: one,
+                    db: zero,
+                    r2,
+                    inv_r2: one / r2,
                     dr2: two * r,
                 }
             }
-            Spacetime::Ellis { b0 } => Radial {
-                a: one,
-                da: zero,
-                b: one,
-                db: zero,
-                r2: b0 * b0 + r * r,
-                dr2: two * r,
-            },
+            Spacetime::Schwarzschild { mass } => {
+                let inv_r = one / r;
+                let f = one - two * mass * inv_r;
+                let df = two * mass * inv_r * inv_r;
+                let inv_f = one / f;
+                Radial {
+                    a: inv_f,
+                    da: -df * inv_f * inv_f,
+                    b: f,
+                    db: df,
+                    r2: r * r,
+                    inv_r2: inv_r * inv_r,
+                    dr2: two * r,
+                }
+            }
         }
     }
 
@@ -111,64 +117,75 @@ impl<F: Real> Spacetime<F> {
     }
 }
 
+/// The angular terms at `theta`: `1/sin`, `cos`, `ang = p_theta^2 + p_phi^2 / sin^2`.
+struct Angular<F> {
+    inv_s: F,
+    co: F,
+    ang: F,
+}
+
+#[inline]
+fn angular<F: Real>(y: &[F; 8]) -> Angular<F> {
+    let (s, co) = y[2].sin_cos();
+    let inv_s = F::one() / s;
+    Angular {
+        inv_s,
+        co,
+        ang: y[6] * y[6] + y[7] * y[7] * inv_s * inv_s,
+    }
+}
+
 impl<F: Real> Hamiltonian<F, 8> for Spacetime<F> {
     const SEPARABLE: bool = false;
 
     fn h(&self, y: &[F; 8]) -> F {
-        let c = self.radial(y[1]);
-        let s = y[2].sin();
-        let ang = (y[6] * y[6] + y[7] * y[7] / (s * s)) / c.r2;
-        (-c.a * y[4] * y[4] + c.b * y[5] * y[5] + ang) * F::of(0.5)
+        self.rhs_h(y).1
     }
 
     fn dx(&self, y: &[F; 8]) -> [F; 8] {
-        let c = self.radial(y[1]);
-        let s = y[2].sin();
-        let z = F::zero();
-        [
-            -c.a * y[4],
-            c.b * y[5],
-            y[6] / c.r2,
-            y[7] / (c.r2 * s * s),
-            z,
-            z,
-            z,
-            z,
-        ]
+        let mut d = self.rhs(y);
+        d[4..].fill(F::zero());
+        d
     }
 
     fn dp(&self, y: &[F; 8]) -> [F; 8] {
-        let c = self.radial(y[1]);
-        let (s, co) = y[2].sin_cos();
-        let half = F::of(0.5);
-        let z = F::zero();
-        let ang = y[6] * y[6] + y[7] * y[7] / (s * s);
-        let dpr =
-            -half * (-c.da * y[4] * y[4] + c.db * y[5] * y[5]) + half * c.dr2 * ang / (c.r2 * c.r2);
-        let dpth = y[7] * y[7] * co / (c.r2 * s * s * s);
-        [z, z, z, z, z, dpr, dpth, z]
+        let mut d = self.rhs(y);
+        d[..4].fill(F::zero());
+        d
     }
 
     fn rhs(&self, y: &[F; 8]) -> [F; 8] {
+        self.rhs_h(y).0
+    }
+
+    /// One `sin_cos` and three divisions (`1/r`, `1/f`, `1/sin`) for the
+    /// whole right-hand side and `H` (the per-stage referee,
+    /// [`super::referee_kernel::SpacetimeReferee`], divides nine times per
+    /// stage and evaluates `H` apart, with its own `sin`).
+    #[inline]
+    fn rhs_h(&self, y: &[F; 8]) -> ([F; 8], F) {
         let c = self.radial(y[1]);
-        let (s, co) = y[2].sin_cos();
+        let g = angular(y);
         let half = F::of(0.5);
         let z = F::zero();
-        let s2 = s * s;
-        let ang = y[6] * y[6] + y[7] * y[7] / s2;
-        let dpr =
-            -half * (-c.da * y[4] * y[4] + c.db * y[5] * y[5]) + half * c.dr2 * ang / (c.r2 * c.r2);
-        let dpth = y[7] * y[7] * co / (c.r2 * s2 * s);
-        [
-            -c.a * y[4],
-            c.b * y[5],
-            y[6] / c.r2,
-            y[7] / (c.r2 * s2),
-            z,
-            dpr,
-            dpth,
-            z,
-        ]
+        let (pt2, pr2) = (y[4] * y[4], y[5] * y[5]);
+        let inv_s2 = g.inv_s * g.inv_s;
+        let dpr = -half * (-c.da * pt2 + c.db * pr2) + half * c.dr2 * g.ang * c.inv_r2 * c.inv_r2;
+        let dpth = y[7] * y[7] * g.co * inv_s2 * g.inv_s * c.inv_r2;
+        let h = (-c.a * pt2 + c.b * pr2 + g.ang * c.inv_r2) * half;
+        (
+            [
+                -c.a * y[4],
+                c.b * y[5],
+                y[6] * c.inv_r2,
+                y[7] * c.inv_r2 * inv_s2,
+                z,
+                dpr,
+                dpth,
+                z,
+            ],
+            h,
+        )
     }
 
     fn scale(&self, y: &[F; 8]) -> F {
@@ -184,8 +201,7 @@ impl<F: Real> Hamiltonian<F, 8> for Spacetime<F> {
     /// by the same relative amount as the drift.
     fn project(&self, y: &mut [F; 8]) {
         let c = self.radial(y[1]);
-        let s = y[2].sin();
-        let spatial = c.b * y[5] * y[5] + (y[6] * y[6] + y[7] * y[7] / (s * s)) / c.r2;
+        let spatial = c.b * y[5] * y[5] + angular(y).ang * c.inv_r2;
         let time = c.a * y[4] * y[4];
         if spatial > F::zero() && time > F::zero() {
             let k = (time / spatial).sqrt();

@@ -9,6 +9,8 @@
 //!   `H = g^{mu nu} p_mu p_nu / 2`.
 //! - [`kerr`]: Kerr in Kerr–Schild Cartesian coordinates, Boyer–Lindquist
 //!   conversions and constants of motion; [`referee_kerr`]: its closed forms.
+//! - [`referee_kernel`]: the per-stage kernels the fused ones replaced, as
+//!   their referees; [`kernel_perf`]: both in one timed run.
 //! - [`integrate`]: tiers (RK4, Dormand–Prince 5(4), Störmer–Verlet,
 //!   Yoshida 4, implicit midpoint), located events, the per-ray loop.
 //! - [`tasks`]: what a scene asks for (deflection lists, observer angle
@@ -27,11 +29,14 @@ pub mod hamiltonian;
 pub mod image;
 pub mod image_checks;
 pub mod integrate;
+pub mod kernel_perf;
 pub mod kerr;
+pub mod kerr_speed_error;
 pub mod kerr_trace;
 pub mod metric;
 pub mod observer;
 pub mod outputs;
 pub mod referee;
+pub mod referee_kernel;
 pub mod referee_kerr;
 pub mod tasks;

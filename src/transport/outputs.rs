@@ -44,8 +44,9 @@ pub fn f64x3(v: Vec<[f64; 3]>) -> Result<Tensor> {
     Tensor::from_shape_vec(&[n, 3], v.into_iter().flatten().collect())
 }
 
-/// `polylines` (k, L, 4), each padded with its last point, and
-/// `polyline_len` (k) for the dumped rays; nothing when none are dumped.
+/// `polylines` (k, L, 4), each padded with its last point,
+/// `polyline_len` (k), `polyline_ray` (k) and `polyline_end` (k, 3), the
+/// last recorded point, for the dumped rays; nothing when none are dumped.
 fn polylines<F: Real>(p: &[Polyline<F>], out: &mut Outputs) -> Result<()> {
     if p.is_empty() {
         return Ok(());
@@ -71,6 +72,11 @@ fn polylines<F: Real>(p: &[Polyline<F>], out: &mut Outputs) -> Result<()> {
         "polyline_ray",
         i32s(p.iter().map(|(i, _)| *i as i32).collect())?,
     );
+    let ends: Vec<[F; 3]> = p
+        .iter()
+        .map(|(_, v)| v.last().map_or([F::zero(); 3], |q| [q[0], q[1], q[2]]))
+        .collect();
+    out.tensor("polyline_end", Tensor::real3(&[ends.len()], &ends)?);
     Ok(())
 }
 
@@ -125,6 +131,12 @@ pub fn run_task<F: Real>(
                 Some(c) => super::gpu::grin_rays(c, g, opt, budget, dump)?,
             };
             polylines(&r.polylines, out)?;
+            if !r.polylines.is_empty() {
+                // The exit data of the dumped rays, for checks against
+                // `polyline_end` (the callback's last point).
+                let exit: Vec<[F; 3]> = r.polylines.iter().map(|(i, _)| r.end_point[*i]).collect();
+                out.tensor("polyline_exit", Tensor::real3(&[exit.len()], &exit)?);
+            }
             let ends: Vec<Vec<f64>> = r
                 .end_point
                 .iter()

@@ -36,6 +36,7 @@ mod pathtrace;
 mod rays;
 mod selftest;
 mod transport;
+mod transport_perf;
 mod volume;
 mod volume_diff;
 mod volume_fit;
@@ -55,6 +56,7 @@ pub fn table() -> impl Iterator<Item = &'static OpEntry> {
         volume_fit::OPS,
         pathtrace::OPS,
         transport::OPS,
+        transport_perf::OPS,
         voxels::OPS,
         selftest::OPS,
     ]
