@@ -320,6 +320,8 @@ impl Frame {
 
 #[cfg(test)]
 mod tests {
+    use std::f32::consts::TAU;
+
     use super::*;
     use crate::rng::rand_f32;
 
@@ -396,8 +398,8 @@ mod tests {
     #[test]
     fn reflection_is_reciprocal() {
         for i in 0..1000 {
-            let a = dir(rand_f32(4, i, 0, 0) * 1.5, rand_f32(4, i, 0, 1) * 6.28);
-            let b = dir(rand_f32(4, i, 0, 2) * 1.5, rand_f32(4, i, 0, 3) * 6.28);
+            let a = dir(rand_f32(4, i, 0, 0) * 1.5, rand_f32(4, i, 0, 1) * TAU);
+            let b = dir(rand_f32(4, i, 0, 2) * 1.5, rand_f32(4, i, 0, 3) * TAU);
             for m in [
                 Material::Lambertian {
                     albedo: Vec3A::splat(0.73),

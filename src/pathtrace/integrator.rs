@@ -32,8 +32,8 @@ use glam::Vec3A;
 use super::bsdf::{Frame, Material};
 use super::packed::Packed;
 use super::shapes::{spawn_origin, Shape};
-use super::soa8::{Soa8, LANES};
-use super::trace8::trace8;
+use super::soa8::Soa8;
+use super::trace8::trace_paths8;
 use crate::budget::{bytes_for, MemBudget};
 use crate::camera::RealCamera;
 use crate::error::{Error, Result};
@@ -213,8 +213,9 @@ pub struct RenderParams {
     pub seed: u32,
     pub max_bounces: u32,
     pub rr_depth: u32,
-    /// Trace eight samples of a pixel at a time (`trace8`); `false`: the
-    /// scalar path, one ray at a time (the referee). The same image.
+    /// Trace paths eight at a time (`trace8::trace_paths8`, lanes refilled
+    /// as paths end); `false`: the scalar path, one ray at a time (the
+    /// referee). The same image.
     pub packet: bool,
 }
 
@@ -444,7 +445,7 @@ impl PathState {
 }
 
 /// Radiance along the camera ray `o + t d` (`d` unit) for one sample: the
-/// scalar path, one ray at a time (the referee of `packet_trace`).
+/// scalar path, one ray at a time (the referee of `trace8::trace_paths8`).
 #[inline]
 pub fn trace(
     scene: &Scene,
@@ -477,55 +478,83 @@ pub fn trace(
     st.l
 }
 
-/// Mean radiance of `spp` samples of pixel `(u, v)` and the sum of squares
-/// (f64 accumulation in sample order, so the result is independent of how
-/// pixels are spread over threads). Returns `(sum, sum_sq, nonfinite)`.
-#[inline]
-fn pixel_sums(
-    scene: &Scene,
-    cam: &RealCamera<f32>,
-    p: &RenderParams,
-    u: u32,
-    v: u32,
-) -> ([f64; 3], [f64; 3], u64) {
-    let pixel = v * p.width + u;
-    let (mut sum, mut sq, mut bad) = ([0.0f64; 3], [0.0f64; 3], 0u64);
-    let mut fold = |l: Vec3A| {
+/// Per-pixel sums of sample radiance and its square, f64, added in sample
+/// order (so the result does not depend on how work is spread over
+/// threads or lanes), and the count of non-finite samples (dropped).
+#[derive(Clone, Copy, Debug, Default)]
+struct Sums {
+    sum: [f64; 3],
+    sq: [f64; 3],
+    bad: u64,
+}
+
+impl Sums {
+    #[inline]
+    fn add(&mut self, l: Vec3A) {
         if !l.is_finite() {
-            bad += 1;
+            self.bad += 1;
             return;
         }
         for c in 0..3 {
             let x = l[c] as f64;
-            sum[c] += x;
-            sq[c] += x * x;
-        }
-    };
-    let camera_ray = |rng: &PathRng| {
-        let px = u as f32 + rng.f(dims::JITTER_X);
-        let py = v as f32 + rng.f(dims::JITTER_Y);
-        let (o, d) = cam.ray(px, py);
-        (Vec3A::from_array(o), Vec3A::from_array(d))
-    };
-    if p.packet {
-        for s0 in (0..p.spp).step_by(LANES) {
-            let n = (p.spp - s0).min(LANES as u32) as usize;
-            let rngs: [PathRng; LANES] =
-                std::array::from_fn(|k| PathRng::new(p.seed, pixel, s0 + k as u32));
-            let rays = std::array::from_fn(|k| camera_ray(&rngs[k]));
-            let ls = trace8(scene, &rays, &rngs, n, p.max_bounces, p.rr_depth);
-            for &l in &ls[..n] {
-                fold(l);
-            }
-        }
-    } else {
-        for s in 0..p.spp {
-            let rng = PathRng::new(p.seed, pixel, s);
-            let (o, d) = camera_ray(&rng);
-            fold(trace(scene, o, d, &rng, p.max_bounces, p.rr_depth));
+            self.sum[c] += x;
+            self.sq[c] += x * x;
         }
     }
-    (sum, sq, bad)
+}
+
+/// The camera ray of one sample of pixel `(u, v)`: position jittered
+/// uniformly in the pixel (box filter).
+#[inline]
+fn camera_ray(cam: &RealCamera<f32>, u: u32, v: u32, rng: &PathRng) -> (Vec3A, Vec3A) {
+    let px = u as f32 + rng.f(dims::JITTER_X);
+    let py = v as f32 + rng.f(dims::JITTER_Y);
+    let (o, d) = cam.ray(px, py);
+    (Vec3A::from_array(o), Vec3A::from_array(d))
+}
+
+/// Paths traced per packet-path batch (bounds its radiance buffer).
+const BATCH: usize = 4096;
+
+/// Sums of the pixels `u0..u1` of row `v`. Packet path: the row's paths
+/// (pixel-major, then sample) in batches through [`trace_paths8`], summed
+/// in that order; scalar path: one [`trace`] per sample.
+fn row_sums(
+    scene: &Scene,
+    cam: &RealCamera<f32>,
+    p: &RenderParams,
+    (u0, u1, v): (u32, u32, u32),
+) -> Vec<Sums> {
+    let spp = p.spp as usize;
+    let mut sums = vec![Sums::default(); (u1 - u0) as usize];
+    if !p.packet {
+        for (i, s) in sums.iter_mut().enumerate() {
+            let u = u0 + i as u32;
+            for k in 0..p.spp {
+                let rng = PathRng::new(p.seed, v * p.width + u, k);
+                let (o, d) = camera_ray(cam, u, v, &rng);
+                s.add(trace(scene, o, d, &rng, p.max_bounces, p.rr_depth));
+            }
+        }
+        return sums;
+    }
+    let total = sums.len() * spp;
+    let mut buf = vec![Vec3A::ZERO; total.min(BATCH)];
+    for b0 in (0..total).step_by(BATCH) {
+        let n = (total - b0).min(BATCH);
+        let start = |j: usize| {
+            let (i, k) = ((b0 + j) / spp, (b0 + j) % spp);
+            let u = u0 + i as u32;
+            let rng = PathRng::new(p.seed, v * p.width + u, k as u32);
+            let (o, d) = camera_ray(cam, u, v, &rng);
+            (o, d, rng)
+        };
+        trace_paths8(scene, start, p.max_bounces, p.rr_depth, &mut buf[..n]);
+        for (j, &l) in buf[..n].iter().enumerate() {
+            sums[(b0 + j) / spp].add(l);
+        }
+    }
+    sums
 }
 
 /// Tile side in pixels (work unit of the thread pool).
@@ -546,11 +575,11 @@ pub fn render(
     let (tw, th) = (p.width.div_ceil(TILE), p.height.div_ceil(TILE));
     let tiles = par_collect("pathtrace.render", (tw * th) as usize, |ti| {
         let (tx, ty) = (ti as u32 % tw, ti as u32 / tw);
+        let (u0, u1) = (tx * TILE, ((tx + 1) * TILE).min(p.width));
         let mut out = Vec::with_capacity((TILE * TILE) as usize);
         for v in ty * TILE..((ty + 1) * TILE).min(p.height) {
-            for u in tx * TILE..((tx + 1) * TILE).min(p.width) {
-                out.push((v * p.width + u, pixel_sums(scene, cam, p, u, v)));
-            }
+            let sums = row_sums(scene, cam, p, (u0, u1, v));
+            out.extend((u0..u1).map(|u| v * p.width + u).zip(sums));
         }
         out
     });
@@ -558,7 +587,7 @@ pub fn render(
     let mut variance = vec![[0.0f32; 3]; n as usize];
     let mut nonfinite = 0;
     let k = p.spp as f64;
-    for (pixel, (sum, sq, bad)) in tiles.into_iter().flatten() {
+    for (pixel, Sums { sum, sq, bad }) in tiles.into_iter().flatten() {
         let i = pixel as usize;
         for c in 0..3 {
             let mean = sum[c] / k;

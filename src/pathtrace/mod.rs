@@ -6,8 +6,8 @@
 //! a time for rendering), [`bsdf`] (materials: a closed
 //! enum), [`integrator`] (NEE + MIS path loop, Russian roulette, tiles over
 //! rayon), [`gpu`] (the same render on the GPU: `kernels/pathtrace.wgsl`),
-//! [`soa8`] and [`trace8`] (eight samples of a pixel at a time, SIMD across
-//! rays; the scalar `integrator::trace` is their referee). Beside them:
+//! [`soa8`] and [`trace8`] (paths eight at a time, lanes refilled as paths
+//! end, SIMD across rays; the scalar `integrator::trace` is their referee). Beside them:
 //! [`referee`] (independent f64 references that never call these stages),
 //! [`checks`] (harnesses that run the stages against the referees and
 //! `crate::stats`) and [`listed`] (listed-ray problems).

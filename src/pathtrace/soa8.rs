@@ -21,6 +21,15 @@ pub struct Rays8 {
     pub d: [[f32; LANES]; 3],
 }
 
+impl Rays8 {
+    /// Origin and direction of lane `k`.
+    #[inline]
+    pub fn lane(&self, k: usize) -> ([f32; 3], [f32; 3]) {
+        let (o, d) = (&self.o, &self.d);
+        ([o[0][k], o[1][k], o[2][k]], [d[0][k], d[1][k], d[2][k]])
+    }
+}
+
 /// Spheres and quads, one array per coordinate.
 #[derive(Clone, Debug, Default)]
 pub struct Soa8 {
@@ -135,34 +144,23 @@ impl Soa8 {
         any: bool,
     ) -> u8 {
         let mut hit = 0u8;
-        for s in 0..self.sid.len() {
+        let g = |v: &[Vec<f32>; 3], i: usize| [v[0][i], v[1][i], v[2][i]];
+        let shapes = (0..self.sid.len())
+            .map(|s| (self.sid[s], Err(s)))
+            .chain((0..self.qid.len()).map(|q| (self.qid[q], Ok(q))));
+        for (shape, which) in shapes {
             for k in (0..LANES).filter(|&k| lane(active, k)) {
-                let (o, d) = (
-                    [r.o[0][k], r.o[1][k], r.o[2][k]],
-                    [r.d[0][k], r.d[1][k], r.d[2][k]],
-                );
-                let c = [self.sc[0][s], self.sc[1][s], self.sc[2][s]];
-                if let Some(t) = sphere_lane(c, self.sr2[s], o, d, tb[k]) {
+                let (o, d) = r.lane(k);
+                let t = match which {
+                    Err(s) => sphere_lane(g(&self.sc, s), self.sr2[s], o, d, tb[k]),
+                    Ok(q) => {
+                        let (c, n) = (g(&self.qc, q), g(&self.qn, q));
+                        quad_lane([c, n, g(&self.qua, q), g(&self.qvb, q)], o, d, tb[k])
+                    }
+                };
+                if let Some(t) = t {
                     tb[k] = t;
-                    id[k] = self.sid[s];
-                    hit |= 1 << k;
-                }
-            }
-            if any && hit == active {
-                return hit;
-            }
-        }
-        for q in 0..self.qid.len() {
-            let g = |v: &[Vec<f32>; 3]| [v[0][q], v[1][q], v[2][q]];
-            let (c, n, ua, vb) = (g(&self.qc), g(&self.qn), g(&self.qua), g(&self.qvb));
-            for k in (0..LANES).filter(|&k| lane(active, k)) {
-                let (o, d) = (
-                    [r.o[0][k], r.o[1][k], r.o[2][k]],
-                    [r.d[0][k], r.d[1][k], r.d[2][k]],
-                );
-                if let Some(t) = quad_lane(c, n, ua, vb, o, d, tb[k]) {
-                    tb[k] = t;
-                    id[k] = self.qid[q];
+                    id[k] = shape;
                     hit |= 1 << k;
                 }
             }
@@ -212,17 +210,11 @@ fn sphere_lane(c: [f32; 3], r2: f32, o: [f32; 3], d: [f32; 3], tbest: f32) -> Op
     ok.then_some(t)
 }
 
-/// One lane of `Packed`'s quad test (general-plane form).
+/// One lane of `Packed`'s quad test (general-plane form); `cnab`: corner,
+/// normal and the dual edge vectors.
 #[inline]
-fn quad_lane(
-    c: [f32; 3],
-    n: [f32; 3],
-    ua: [f32; 3],
-    vb: [f32; 3],
-    o: [f32; 3],
-    d: [f32; 3],
-    tbest: f32,
-) -> Option<f32> {
+fn quad_lane(cnab: [[f32; 3]; 4], o: [f32; 3], d: [f32; 3], tbest: f32) -> Option<f32> {
+    let [c, n, ua, vb] = cnab;
     let dn = d[0] * n[0] + d[1] * n[1] + d[2] * n[2];
     let num = (c[0] - o[0]) * n[0] + (c[1] - o[1]) * n[1] + (c[2] - o[2]) * n[2];
     let t = num / dn;
@@ -243,6 +235,101 @@ mod avx2 {
 
     use super::{Rays8, Soa8, LANES};
 
+    type V3 = [__m256; 3];
+
+    #[inline]
+    #[target_feature(enable = "avx2")]
+    fn add(a: __m256, b: __m256) -> __m256 {
+        _mm256_add_ps(a, b)
+    }
+    #[inline]
+    #[target_feature(enable = "avx2")]
+    fn sub(a: __m256, b: __m256) -> __m256 {
+        _mm256_sub_ps(a, b)
+    }
+    #[inline]
+    #[target_feature(enable = "avx2")]
+    fn mul(a: __m256, b: __m256) -> __m256 {
+        _mm256_mul_ps(a, b)
+    }
+    /// `a.x b.x + a.y b.y + a.z b.z`, summed left to right (as glam and
+    /// the lane loop do).
+    #[inline]
+    #[target_feature(enable = "avx2")]
+    fn dot(a: V3, b: V3) -> __m256 {
+        add(add(mul(a[0], b[0]), mul(a[1], b[1])), mul(a[2], b[2]))
+    }
+    /// All of the four masks.
+    #[inline]
+    #[target_feature(enable = "avx2")]
+    fn all4(a: __m256, b: __m256, c: __m256, d: __m256) -> __m256 {
+        _mm256_and_ps(_mm256_and_ps(a, b), _mm256_and_ps(c, d))
+    }
+    /// `0 <= x <= 1` (false for NaN).
+    #[inline]
+    #[target_feature(enable = "avx2")]
+    fn unit(x: __m256) -> __m256 {
+        _mm256_and_ps(
+            _mm256_cmp_ps::<_CMP_GE_OQ>(x, _mm256_setzero_ps()),
+            _mm256_cmp_ps::<_CMP_LE_OQ>(x, _mm256_set1_ps(1.0)),
+        )
+    }
+    /// Shape `k` of the coordinate arrays `v`, broadcast to all lanes.
+    #[inline]
+    #[target_feature(enable = "avx2")]
+    fn splat3(v: &[Vec<f32>; 3], k: usize) -> V3 {
+        [0, 1, 2].map(|a| _mm256_set1_ps(v[a][k]))
+    }
+
+    /// Sphere `(c, r2)` against the eight rays: `(t, hit mask)` for hits
+    /// in (0, tbest), the operations of `super::sphere_lane`.
+    #[inline]
+    #[target_feature(enable = "avx2")]
+    fn sphere(c: V3, r2: __m256, o: V3, d: V3, tbest: __m256) -> (__m256, __m256) {
+        let zero = _mm256_setzero_ps();
+        let sign = _mm256_set1_ps(-0.0);
+        let f = [sub(o[0], c[0]), sub(o[1], c[1]), sub(o[2], c[2])];
+        let b = _mm256_xor_ps(dot(f, d), sign);
+        let cc = sub(dot(f, f), r2);
+        let l = [0, 1, 2].map(|a| add(f[a], mul(b, d[a])));
+        let disc = sub(r2, dot(l, l));
+        let root = _mm256_sqrt_ps(_mm256_max_ps(disc, zero));
+        let neg = _mm256_cmp_ps::<_CMP_LT_OQ>(b, zero);
+        let q = add(b, _mm256_blendv_ps(root, _mm256_xor_ps(root, sign), neg));
+        let (t0, t1) = (_mm256_div_ps(cc, q), q);
+        let (lo, hi) = (_mm256_min_ps(t0, t1), _mm256_max_ps(t0, t1));
+        let t = _mm256_blendv_ps(hi, lo, _mm256_cmp_ps::<_CMP_GT_OQ>(lo, zero));
+        let behind = _mm256_and_ps(_mm256_cmp_ps::<_CMP_GT_OQ>(cc, zero), neg);
+        let ok = all4(
+            _mm256_cmp_ps::<_CMP_GE_OQ>(disc, zero),
+            _mm256_cmp_ps::<_CMP_GT_OQ>(t, zero),
+            _mm256_cmp_ps::<_CMP_LT_OQ>(t, tbest),
+            _mm256_cmp_ps::<_CMP_NEQ_UQ>(q, zero),
+        );
+        (t, _mm256_andnot_ps(behind, ok))
+    }
+
+    /// Quad `(corner, normal, ua, vb)` against the eight rays, the
+    /// operations of `super::quad_lane`.
+    #[inline]
+    #[target_feature(enable = "avx2")]
+    fn quad(cnab: [V3; 4], o: V3, d: V3, tbest: __m256) -> (__m256, __m256) {
+        let [c, n, ua, vb] = cnab;
+        let zero = _mm256_setzero_ps();
+        let t = _mm256_div_ps(
+            dot([sub(c[0], o[0]), sub(c[1], o[1]), sub(c[2], o[2])], n),
+            dot(d, n),
+        );
+        let h = [0, 1, 2].map(|a| sub(add(o[a], mul(t, d[a])), c[a]));
+        let ok = all4(
+            _mm256_cmp_ps::<_CMP_GT_OQ>(t, zero),
+            _mm256_cmp_ps::<_CMP_LT_OQ>(t, tbest),
+            unit(dot(h, ua)),
+            unit(dot(h, vb)),
+        );
+        (t, ok)
+    }
+
     /// The portable loop's operations on 8 lanes at once.
     ///
     /// # Safety
@@ -257,13 +344,10 @@ mod avx2 {
         any: bool,
     ) -> u8 {
         let ld = |a: &[f32; LANES]| _mm256_loadu_ps(a.as_ptr());
-        let (ox, oy, oz) = (ld(&r.o[0]), ld(&r.o[1]), ld(&r.o[2]));
-        let (dx, dy, dz) = (ld(&r.d[0]), ld(&r.d[1]), ld(&r.d[2]));
+        let o = [ld(&r.o[0]), ld(&r.o[1]), ld(&r.o[2])];
+        let d = [ld(&r.d[0]), ld(&r.d[1]), ld(&r.d[2])];
         let mut tbest = ld(tb);
         let mut ids = _mm256_loadu_si256(id.as_ptr() as *const __m256i);
-        let zero = _mm256_setzero_ps();
-        let one = _mm256_set1_ps(1.0);
-        let sign = _mm256_set1_ps(-0.0);
         let act = active as i32;
         // All-ones in the active lanes.
         let bits = _mm256_setr_epi32(1, 2, 4, 8, 16, 32, 64, 128);
@@ -271,111 +355,32 @@ mod avx2 {
             _mm256_and_si256(_mm256_set1_epi32(act), bits),
             _mm256_setzero_si256(),
         ));
-        let mut hit = 0i32;
-        let add = |a, b| _mm256_add_ps(a, b);
-        let sub = |a, b| _mm256_sub_ps(a, b);
-        let mul = |a, b| _mm256_mul_ps(a, b);
-        let take = |ok: __m256, t: __m256, shape: u32, tbest: &mut __m256, ids: &mut __m256i| {
-            let ok = _mm256_and_ps(ok, actv);
-            let m = _mm256_movemask_ps(ok);
-            if m != 0 {
-                *tbest = _mm256_blendv_ps(*tbest, t, ok);
-                *ids = _mm256_blendv_epi8(
-                    *ids,
-                    _mm256_set1_epi32(shape as i32),
-                    _mm256_castps_si256(ok),
-                );
-            }
-            m
-        };
-        for k in 0..s.sid.len() {
-            let (cx, cy, cz) = (
-                _mm256_set1_ps(s.sc[0][k]),
-                _mm256_set1_ps(s.sc[1][k]),
-                _mm256_set1_ps(s.sc[2][k]),
-            );
-            let r2 = _mm256_set1_ps(s.sr2[k]);
-            let (fx, fy, fz) = (sub(ox, cx), sub(oy, cy), sub(oz, cz));
-            let b = _mm256_xor_ps(add(add(mul(fx, dx), mul(fy, dy)), mul(fz, dz)), sign);
-            let c = sub(add(add(mul(fx, fx), mul(fy, fy)), mul(fz, fz)), r2);
-            let (lx, ly, lz) = (
-                add(fx, mul(b, dx)),
-                add(fy, mul(b, dy)),
-                add(fz, mul(b, dz)),
-            );
-            let disc = sub(r2, add(add(mul(lx, lx), mul(ly, ly)), mul(lz, lz)));
-            let root = _mm256_sqrt_ps(_mm256_max_ps(disc, zero));
-            let neg = _mm256_cmp_ps::<_CMP_LT_OQ>(b, zero);
-            let q = add(b, _mm256_blendv_ps(root, _mm256_xor_ps(root, sign), neg));
-            let (t0, t1) = (_mm256_div_ps(c, q), q);
-            let (lo, hi) = (_mm256_min_ps(t0, t1), _mm256_max_ps(t0, t1));
-            let t = _mm256_blendv_ps(hi, lo, _mm256_cmp_ps::<_CMP_GT_OQ>(lo, zero));
-            let behind = _mm256_and_ps(_mm256_cmp_ps::<_CMP_GT_OQ>(c, zero), neg);
-            let ok = _mm256_andnot_ps(
-                behind,
-                _mm256_and_ps(
-                    _mm256_and_ps(
-                        _mm256_cmp_ps::<_CMP_GE_OQ>(disc, zero),
-                        _mm256_cmp_ps::<_CMP_GT_OQ>(t, zero),
-                    ),
-                    _mm256_and_ps(
-                        _mm256_cmp_ps::<_CMP_LT_OQ>(t, tbest),
-                        _mm256_cmp_ps::<_CMP_NEQ_UQ>(q, zero),
-                    ),
-                ),
-            );
-            hit |= take(ok, t, s.sid[k], &mut tbest, &mut ids);
-            if any && hit == act {
-                break;
-            }
-        }
-        if !(any && hit == act) {
-            for k in 0..s.qid.len() {
-                let g = |v: &[Vec<f32>; 3]| {
-                    (
-                        _mm256_set1_ps(v[0][k]),
-                        _mm256_set1_ps(v[1][k]),
-                        _mm256_set1_ps(v[2][k]),
-                    )
-                };
-                let ((cx, cy, cz), (nx, ny, nz)) = (g(&s.qc), g(&s.qn));
-                let ((ax, ay, az), (bx, by, bz)) = (g(&s.qua), g(&s.qvb));
-                let dn = add(add(mul(dx, nx), mul(dy, ny)), mul(dz, nz));
-                let num = add(
-                    add(mul(sub(cx, ox), nx), mul(sub(cy, oy), ny)),
-                    mul(sub(cz, oz), nz),
-                );
-                let t = _mm256_div_ps(num, dn);
-                let hx = sub(add(ox, mul(t, dx)), cx);
-                let hy = sub(add(oy, mul(t, dy)), cy);
-                let hz = sub(add(oz, mul(t, dz)), cz);
-                let a = add(add(mul(hx, ax), mul(hy, ay)), mul(hz, az));
-                let bb = add(add(mul(hx, bx), mul(hy, by)), mul(hz, bz));
-                let ok = _mm256_and_ps(
-                    _mm256_and_ps(
-                        _mm256_and_ps(
-                            _mm256_cmp_ps::<_CMP_GT_OQ>(t, zero),
-                            _mm256_cmp_ps::<_CMP_LT_OQ>(t, tbest),
-                        ),
-                        _mm256_and_ps(
-                            _mm256_cmp_ps::<_CMP_GE_OQ>(a, zero),
-                            _mm256_cmp_ps::<_CMP_LE_OQ>(a, one),
-                        ),
-                    ),
-                    _mm256_and_ps(
-                        _mm256_cmp_ps::<_CMP_GE_OQ>(bb, zero),
-                        _mm256_cmp_ps::<_CMP_LE_OQ>(bb, one),
-                    ),
-                );
-                hit |= take(ok, t, s.qid[k], &mut tbest, &mut ids);
-                if any && hit == act {
-                    break;
+        // Branch-free updates: a hit or miss per shape and lane is close to
+        // random, so a branch on it would be mispredicted often.
+        let mut hits = _mm256_setzero_ps();
+        let shapes = (0..s.sid.len())
+            .map(|k| (s.sid[k], Err(k)))
+            .chain((0..s.qid.len()).map(|k| (s.qid[k], Ok(k))));
+        for (shape, which) in shapes {
+            let (t, ok) = match which {
+                Err(k) => sphere(splat3(&s.sc, k), _mm256_set1_ps(s.sr2[k]), o, d, tbest),
+                Ok(k) => {
+                    let cnab = [&s.qc, &s.qn, &s.qua, &s.qvb].map(|v| splat3(v, k));
+                    quad(cnab, o, d, tbest)
                 }
+            };
+            let ok = _mm256_and_ps(ok, actv);
+            tbest = _mm256_blendv_ps(tbest, t, ok);
+            let shape = _mm256_set1_epi32(shape as i32);
+            ids = _mm256_blendv_epi8(ids, shape, _mm256_castps_si256(ok));
+            hits = _mm256_or_ps(hits, ok);
+            if any && _mm256_movemask_ps(hits) == act {
+                break;
             }
         }
         _mm256_storeu_ps(tb.as_mut_ptr(), tbest);
         _mm256_storeu_si256(id.as_mut_ptr() as *mut __m256i, ids);
-        hit as u8
+        _mm256_movemask_ps(hits) as u8
     }
 }
 

@@ -1,81 +1,95 @@
-//! The packet path: eight samples of one pixel traced in lockstep, their
-//! rays tested eight at a time ([`super::soa8`]), each vertex shaded by the
-//! same per-path steps as the scalar [`super::integrator::trace`]
+//! The packet path: camera paths traced eight at a time, their rays
+//! tested eight at a time ([`super::soa8`]), each vertex shaded by the same
+//! per-path steps as the scalar [`super::integrator::trace`]
 //! ([`PathState`]), which stays the referee: the same random numbers and
-//! the same operations give the same image, bit for bit (unit test below;
-//! case `pt_packet_equals_scalar`).
+//! the same operations give the same radiance per path, bit for bit (unit
+//! test below; case `pt_packet_equals_scalar`).
+//!
+//! Lanes are refilled: when a lane's path ends (a miss, a light, Russian
+//! roulette, the bounce limit) the next path of the caller's list starts in
+//! that lane at once, so every packet test runs on (almost) eight live rays
+//! instead of waiting for the longest path of a group of eight. Paths end
+//! in any order; each writes its radiance to its own slot, and the caller
+//! sums the slots in sample order (the scalar path's order).
 
 use glam::Vec3A;
 
 use super::integrator::{light_sample, PathRng, PathState, Scene, Vertex};
 use super::soa8::{lane, Rays8, LANES};
 
-fn pack(st: &[PathState; LANES], active: u8, f: impl Fn(&PathState) -> (Vec3A, Vec3A)) -> Rays8 {
-    let mut r = Rays8::default();
-    for (k, s) in st.iter().enumerate().filter(|(k, _)| lane(active, *k)) {
-        let (o, d) = f(s);
-        for a in 0..3 {
-            r.o[a][k] = o[a];
-            r.d[a][k] = d[a];
-        }
+/// Lane `k` of `r` set to the ray `o + t d`.
+#[inline]
+fn set_lane(r: &mut Rays8, k: usize, o: Vec3A, d: Vec3A) {
+    for a in 0..3 {
+        r.o[a][k] = o[a];
+        r.d[a][k] = d[a];
     }
-    r
 }
 
-/// Radiance of up to eight camera paths (`n` of them, lanes `0..n`):
-/// `rays[k]` with random numbers `rngs[k]`.
-pub fn trace8(
+/// Radiance of the camera paths `0..out.len()`: path `j` starts as
+/// `start(j)` (camera ray origin, unit direction, random numbers) and its
+/// radiance goes to `out[j]`.
+pub fn trace_paths8(
     scene: &Scene,
-    rays: &[(Vec3A, Vec3A); LANES],
-    rngs: &[PathRng; LANES],
-    n: usize,
+    start: impl Fn(usize) -> (Vec3A, Vec3A, PathRng),
     max_bounces: u32,
     rr_depth: u32,
-) -> [Vec3A; LANES] {
-    let mut st = rays.map(|(o, d)| PathState::new(o, d));
-    let mut active: u8 = if n >= LANES { 0xff } else { (1u8 << n) - 1 };
-    let mut verts: [Option<Vertex>; LANES] = [None; LANES];
-    while active != 0 {
-        let (t, id) = scene
-            .soa()
-            .intersect8(&pack(&st, active, |s| (s.o, s.d)), active);
-        let mut shadow = [None; LANES];
+    out: &mut [Vec3A],
+) {
+    let soa = scene.soa();
+    let mut st = [PathState::new(Vec3A::ZERO, Vec3A::Z); LANES];
+    let mut rngs = [PathRng::new(0, 0, 0); LANES];
+    let mut job = [0usize; LANES];
+    let (mut next, mut active) = (0usize, 0u8);
+    let mut rays = Rays8::default();
+    loop {
         for k in 0..LANES {
-            verts[k] = None;
-            if !lane(active, k) {
-                continue;
+            if !lane(active, k) && next < out.len() {
+                let (o, d, r) = start(next);
+                st[k] = PathState::new(o, d);
+                rngs[k] = r;
+                job[k] = next;
+                next += 1;
+                active |= 1 << k;
             }
-            if id[k] == u32::MAX {
+            if lane(active, k) {
+                set_lane(&mut rays, k, st[k].o, st[k].d);
+            }
+        }
+        if active == 0 {
+            return;
+        }
+        let (t, id) = soa.intersect8(&rays, active);
+        let mut verts: [Option<Vertex>; LANES] = [None; LANES];
+        let mut shadow = [None; LANES];
+        let (mut smask, mut tmax, mut sr) = (0u8, [0.0f32; LANES], Rays8::default());
+        let live = active;
+        for k in (0..LANES).filter(|&k| lane(live, k)) {
+            let v = if id[k] == u32::MAX {
                 st[k].miss(scene);
+                None
+            } else {
+                st[k].hit(scene, t[k], id[k] as usize, max_bounces)
+            };
+            let Some(v) = v else {
+                out[job[k]] = st[k].l;
                 active &= !(1 << k);
                 continue;
-            }
-            match st[k].hit(scene, t[k], id[k] as usize, max_bounces) {
-                None => active &= !(1 << k),
-                Some(v) => {
-                    if PathState::samples_light(scene, &v) {
-                        // Some(None): the sample is worth 0 whatever blocks it.
-                        shadow[k] = Some(light_sample(scene, &v, &rngs[k]));
-                    }
-                    verts[k] = Some(v);
+            };
+            if PathState::samples_light(scene, &v) {
+                // Some(None): the sample is worth 0 whatever blocks it.
+                let ls = light_sample(scene, &v, &rngs[k]);
+                if let Some(ls) = ls {
+                    smask |= 1 << k;
+                    tmax[k] = ls.tmax;
+                    set_lane(&mut sr, k, ls.o, ls.wi);
                 }
+                shadow[k] = Some(ls);
             }
-        }
-        let mut smask = 0u8;
-        let mut tmax = [0.0f32; LANES];
-        let mut sr = Rays8::default();
-        for k in 0..LANES {
-            if let Some(Some(ls)) = shadow[k] {
-                smask |= 1 << k;
-                tmax[k] = ls.tmax;
-                for a in 0..3 {
-                    sr.o[a][k] = ls.o[a];
-                    sr.d[a][k] = ls.wi[a];
-                }
-            }
+            verts[k] = Some(v);
         }
         let occ = if smask != 0 {
-            scene.soa().occluded8(&sr, &tmax, smask)
+            soa.occluded8(&sr, &tmax, smask)
         } else {
             0
         };
@@ -87,11 +101,11 @@ pub fn trace8(
                 None => {}
             }
             if !st[k].scatter(&v, &rngs[k], rr_depth) {
+                out[job[k]] = st[k].l;
                 active &= !(1 << k);
             }
         }
     }
-    st.map(|s| s.l)
 }
 
 #[cfg(test)]
@@ -103,8 +117,7 @@ mod tests {
     use crate::pathtrace::integrator::{render, RenderParams};
     use crate::pathtrace::shapes::{Quad, Shape, Sphere};
 
-    /// A light, a floor, a metal and a glass sphere; 13 spp leaves a
-    /// packet of five lanes.
+    /// A light, a floor, a metal and a glass sphere.
     #[test]
     fn packet_render_equals_the_scalar_render_bit_for_bit() {
         let v = Vec3A::new;
@@ -141,24 +154,30 @@ mod tests {
             Material::Dielectric { ior: 1.5 },
         ];
         let scene = Scene::new(&objs, mats, [0.1, 0.1, 0.1]).unwrap();
-        let cam = Camera::pinhole_look_at([0.0, 0.0, 4.0], [0.0; 3], [0.0, 1.0, 0.0], 40.0, 24, 24)
-            .unwrap()
-            .to_real(24, 24);
-        let mut p = RenderParams {
-            width: 24,
-            height: 24,
-            spp: 13,
-            seed: 3,
-            max_bounces: 64,
-            rr_depth: 2,
-            packet: true,
-        };
-        let b = MemBudget::fixed(1 << 30);
-        let a = render(&scene, &cam, &p, &b).unwrap();
-        p.packet = false;
-        let s = render(&scene, &cam, &p, &b).unwrap();
-        assert_eq!(a.rgb, s.rgb);
-        assert_eq!(a.variance, s.variance);
-        assert!(a.rgb.iter().any(|x| x[0] > 0.0));
+        // 24 x 24 at 13 spp: a partial tile, packets spanning pixels, a last
+        // packet of fewer than eight paths; 17 x 2 at 300 spp: a batch of
+        // BATCH paths ends inside a pixel (16 x 300 > 4096).
+        for (w, h, spp) in [(24, 24, 13), (17, 2, 300)] {
+            let cam =
+                Camera::pinhole_look_at([0.0, 0.0, 4.0], [0.0; 3], [0.0, 1.0, 0.0], 40.0, w, h)
+                    .unwrap()
+                    .to_real(w, h);
+            let mut p = RenderParams {
+                width: w,
+                height: h,
+                spp,
+                seed: 3,
+                max_bounces: 64,
+                rr_depth: 2,
+                packet: true,
+            };
+            let b = MemBudget::fixed(1 << 30);
+            let a = render(&scene, &cam, &p, &b).unwrap();
+            p.packet = false;
+            let s = render(&scene, &cam, &p, &b).unwrap();
+            assert_eq!(a.rgb, s.rgb);
+            assert_eq!(a.variance, s.variance);
+            assert!(a.rgb.iter().any(|x| x[0] > 0.0));
+        }
     }
 }

@@ -7,7 +7,7 @@
 //! | `seed` | first key of `rand(seed, pixel, sample, dim)` | 0 |
 //! | `max_bounces` | most scattering events on a path (camera ray hitting a light = 0) | 64 |
 //! | `rr_depth` | bounces before Russian roulette starts | 5 |
-//! | `packet` | trace 8 samples of a pixel at once (SIMD across rays); `false`: the scalar path (the same image) | true |
+//! | `packet` | trace paths 8 at a time, lanes refilled as paths end (SIMD across rays); `false`: the scalar path (the same image) | true |
 //! | `environment` | uniform radiance of every ray that leaves the scene | [0, 0, 0] |
 //! | `materials` | name -> material (below) | required |
 //! | `shapes` | list of shapes (below) | required |
