@@ -1,12 +1,83 @@
 //! The voxel renderer's GPU backend: the cast's parameters rounded to the
-//! kernel's f32 exactly as [`super::cast::cast::<f32>`] rounds them, and the
-//! kernel's per-ray results (`crate::gpu::voxels`, `kernels/voxels.wgsl`)
-//! in the renderer's [`VoxelHits`] conventions.
+//! kernel's f32 exactly as [`super::cast::cast::<f32>`] rounds them, the
+//! structure a scene is cast through ([`Through`]: octree, DAG or octree
+//! with contours) uploaded with its kernel specialisation, the contour
+//! decode table, and the kernel's per-ray results (`crate::gpu::voxels`,
+//! `kernels/voxels.wgsl`) in the renderer's [`VoxelHits`] conventions.
 
-use crate::gpu::voxels::{GpuCastParams, GpuVoxelHit};
+use crate::error::Result;
+use crate::gpu::voxels::{
+    GpuAddressing, GpuCastParams, GpuContours, GpuOctree, GpuVoxelHit, CONTOUR_LUT_LEN,
+};
+use crate::gpu::GpuContext;
 
-use super::cast::CastParams;
-use super::render::VoxelHits;
+use super::cast::{CastParams, CastReal};
+use super::contour::decode;
+use super::dag::Dag;
+use super::octree::Octree;
+use super::render::{cast_all, cast_all_contours, cast_all_dag, VoxelHits};
+
+/// What a scene's rays are cast through, on either backend.
+#[derive(Clone, Copy, Debug)]
+pub enum Through<'a> {
+    /// The ESVO octree ([`super::cast::cast`]).
+    Octree(&'a Octree),
+    /// The DAG ([`super::cast::cast_dag`]).
+    Dag(&'a Dag),
+    /// The octree with contours per attribute index ([`super::cast::cast_contours`]).
+    Contours(&'a Octree, &'a [u32]),
+}
+
+impl Through<'_> {
+    /// The CPU cast of every ray (the GPU kernel's twin for `F = f32`).
+    pub fn cast_all<F: CastReal>(
+        &self,
+        o: &[[F; 3]],
+        d: &[[F; 3]],
+        p: &CastParams,
+    ) -> VoxelHits<F> {
+        match *self {
+            Through::Octree(t) => cast_all(t, o, d, p),
+            Through::Dag(g) => cast_all_dag(g, o, d, p),
+            Through::Contours(t, cs) => cast_all_contours(t, cs, o, d, p).0,
+        }
+    }
+
+    /// Uploads the structure (and the contour table) to the GPU, with the
+    /// kernel specialised for its addressing.
+    pub fn upload<'c>(&self, ctx: &'c GpuContext) -> Result<GpuOctree<'c>> {
+        match *self {
+            Through::Octree(t) => {
+                GpuOctree::with(ctx, &t.nodes, t.depth, GpuAddressing::Relative, None)
+            }
+            Through::Dag(g) => {
+                GpuOctree::with(ctx, &g.nodes, g.depth, GpuAddressing::Absolute, None)
+            }
+            Through::Contours(t, cs) => {
+                let lut = contour_lut();
+                let c = GpuContours {
+                    codes: cs,
+                    lut: &lut,
+                };
+                GpuOctree::with(ctx, &t.nodes, t.depth, GpuAddressing::Relative, Some(c))
+            }
+        }
+    }
+}
+
+/// The kernel's contour decode table (`kernels/voxels.wgsl` `contour_lut`):
+/// [`decode::<f32>`] of every 18-bit normal code (3 f32 each), then of the
+/// 128 offset codes, then of the 128 thickness codes, so the kernel uses
+/// the very f32 values the CPU cast computes in f64 and rounds.
+pub fn contour_lut() -> Vec<f32> {
+    let mut lut = Vec::with_capacity(CONTOUR_LUT_LEN);
+    for code in 0u32..1 << 18 {
+        lut.extend(decode::<f32>(code << 14).0);
+    }
+    lut.extend((0u32..128).map(|q| decode::<f32>(q << 7).1));
+    lut.extend((0u32..128).map(|q| decode::<f32>(q).2));
+    lut
+}
 
 /// `p` in the kernel's f32: near and far as `F::of` rounds them (far
 /// clamped to `f32::MAX`, a bound no ray reaches in the unit box), the LOD
@@ -59,6 +130,30 @@ mod tests {
         let g = gpu_params(&p);
         assert_eq!((g.near, g.far, g.max_iter), (0.1f32, f32::MAX, 77));
         assert_eq!(g.lod, Some((0.3f32 * 0.5, 0.02f32 * 0.5)));
+    }
+
+    #[test]
+    fn contour_table_holds_the_cpu_decode_of_every_field() {
+        let lut = contour_lut();
+        assert_eq!(lut.len(), CONTOUR_LUT_LEN);
+        for v in [
+            0x1234_5678u32,
+            0xFFFF_FFFF,
+            0x8000_4081,
+            7 << 26 | 3 << 7 | 100,
+        ] {
+            let (n, p, h) = decode::<f32>(v);
+            let k = 3 * (v >> 14) as usize;
+            assert_eq!(&lut[k..k + 3], &n[..]);
+            assert_eq!(
+                lut[3 << 18 | (v >> 7 & 0x7F) as usize].to_bits(),
+                p.to_bits()
+            );
+            assert_eq!(
+                lut[(3 << 18) + 128 + (v & 0x7F) as usize].to_bits(),
+                h.to_bits()
+            );
+        }
     }
 
     #[test]

@@ -11,6 +11,7 @@ pub mod dag;
 pub mod gpu;
 pub mod octree;
 pub mod outputs;
+pub mod packet;
 pub mod raysets;
 pub mod referee;
 pub mod referee_dag;
