@@ -28,8 +28,19 @@
 // clamped by the host to the driver's loop cap (src/gpu/voxels.rs); a
 // driver whose division is not correctly rounded (WGSL allows 2.5 ulp) can
 // move a ray across a near tie; lavapipe divides exactly.
+// Contours: the 32-bit code is unpacked here; its normal (18 bits), offset
+// and thickness (7 bits each) index `contour_lut`, a table the host fills
+// with src/voxels/contour.rs `decode::<f32>` of every code (f64 math
+// rounded to f32: WGSL has no f64), so both sides use the same f32 values.
 
 const S_MAX: i32 = 23;
+// 0: octree (relative child addressing), 1: DAG (absolute: child c at childPtr + c).
+override ADDRESSING: u32 = 0u;
+// 1: cut finest-level leaves to their contour slab (octree only, as on the CPU).
+override CONTOURS: u32 = 0u;
+// contour_lut layout: normals (3 f32 per 18-bit code), then 128 offsets, then 128 thicknesses.
+const LUT_P: u32 = 786432u;
+const LUT_H: u32 = 786560u;
 
 struct VoxParams {
     near: f32,

@@ -1,69 +1,15 @@
 //! The voxel renderer's GPU backend: the cast's parameters rounded to the
 //! kernel's f32 exactly as [`super::cast::cast::<f32>`] rounds them, the
-//! structure a scene is cast through ([`Through`]: octree, DAG or octree
-//! with contours) uploaded with its kernel specialisation, the contour
-//! decode table, and the kernel's per-ray results (`crate::gpu::voxels`,
-//! `kernels/voxels.wgsl`) in the renderer's [`VoxelHits`] conventions.
+//! contour decode table, and the kernel's per-ray results
+//! (`crate::gpu::voxels`, `kernels/voxels.wgsl`) in the renderer's
+//! [`VoxelHits`] conventions. [`super::through::Through::upload`] puts a
+//! scene's structure on the GPU.
 
-use crate::error::Result;
-use crate::gpu::voxels::{
-    GpuAddressing, GpuCastParams, GpuContours, GpuOctree, GpuVoxelHit, CONTOUR_LUT_LEN,
-};
-use crate::gpu::GpuContext;
+use crate::gpu::voxels::{GpuCastParams, GpuVoxelHit, CONTOUR_LUT_LEN};
 
-use super::cast::{CastParams, CastReal};
+use super::cast::CastParams;
 use super::contour::decode;
-use super::dag::Dag;
-use super::octree::Octree;
-use super::render::{cast_all, cast_all_contours, cast_all_dag, VoxelHits};
-
-/// What a scene's rays are cast through, on either backend.
-#[derive(Clone, Copy, Debug)]
-pub enum Through<'a> {
-    /// The ESVO octree ([`super::cast::cast`]).
-    Octree(&'a Octree),
-    /// The DAG ([`super::cast::cast_dag`]).
-    Dag(&'a Dag),
-    /// The octree with contours per attribute index ([`super::cast::cast_contours`]).
-    Contours(&'a Octree, &'a [u32]),
-}
-
-impl Through<'_> {
-    /// The CPU cast of every ray (the GPU kernel's twin for `F = f32`).
-    pub fn cast_all<F: CastReal>(
-        &self,
-        o: &[[F; 3]],
-        d: &[[F; 3]],
-        p: &CastParams,
-    ) -> VoxelHits<F> {
-        match *self {
-            Through::Octree(t) => cast_all(t, o, d, p),
-            Through::Dag(g) => cast_all_dag(g, o, d, p),
-            Through::Contours(t, cs) => cast_all_contours(t, cs, o, d, p).0,
-        }
-    }
-
-    /// Uploads the structure (and the contour table) to the GPU, with the
-    /// kernel specialised for its addressing.
-    pub fn upload<'c>(&self, ctx: &'c GpuContext) -> Result<GpuOctree<'c>> {
-        match *self {
-            Through::Octree(t) => {
-                GpuOctree::with(ctx, &t.nodes, t.depth, GpuAddressing::Relative, None)
-            }
-            Through::Dag(g) => {
-                GpuOctree::with(ctx, &g.nodes, g.depth, GpuAddressing::Absolute, None)
-            }
-            Through::Contours(t, cs) => {
-                let lut = contour_lut();
-                let c = GpuContours {
-                    codes: cs,
-                    lut: &lut,
-                };
-                GpuOctree::with(ctx, &t.nodes, t.depth, GpuAddressing::Relative, Some(c))
-            }
-        }
-    }
-}
+use super::render::VoxelHits;
 
 /// The kernel's contour decode table (`kernels/voxels.wgsl` `contour_lut`):
 /// [`decode::<f32>`] of every 18-bit normal code (3 f32 each), then of the

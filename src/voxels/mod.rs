@@ -17,6 +17,7 @@ pub mod referee;
 pub mod referee_dag;
 pub mod render;
 pub mod shape;
+pub mod through;
 
 #[cfg(test)]
 mod tests {

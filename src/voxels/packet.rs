@@ -227,7 +227,7 @@ fn stream<F: CastReal, A: Addressing>(
     loop {
         // Refill idle lanes with the next rays (a ray missing the root box
         // is answered at once).
-        let mut active = 0;
+        let mut any = false;
         for l in 0..W {
             while ln.ray[l] == IDLE && next < o.len() {
                 let i = next;
@@ -237,27 +237,29 @@ fn stream<F: CastReal, A: Addressing>(
                     None => out[i] = CastHit::miss(0, false),
                 }
             }
-            active += (ln.ray[l] != IDLE) as usize;
+            any |= ln.ray[l] != IDLE;
         }
-        if active == 0 {
+        if !any {
             return;
         }
-        // Iteration count, cap, descriptor fetch (per lane).
+        // Iteration count and descriptor fetch, branch-free on every lane
+        // (an idle lane's `parent` is a valid slot); the capped lanes.
+        let mut active = 0u32;
+        let mut capped = 0u32;
         for l in 0..W {
-            if ln.ray[l] == IDLE {
-                continue;
-            }
+            let on = ln.ray[l] != IDLE;
+            active |= (on as u32) << l;
             ln.iters[l] += 1;
-            if ln.iters[l] > p.max_iter {
-                out[ln.ray[l]] = CastHit::miss(ln.iters[l] - 1, true);
-                ln.ray[l] = IDLE;
-                continue;
-            }
-            if ln.desc[l] == 0 {
-                ln.desc[l] = nodes[2 * ln.parent[l] as usize];
-            }
+            capped |= ((on && ln.iters[l] > p.max_iter) as u32) << l;
+            let w = nodes[2 * ln.parent[l] as usize];
+            ln.desc[l] = sel(ln.desc[l] == 0, w, ln.desc[l]);
         }
-        // Lane arithmetic: ray-plane times, masks.
+        for l in bits(capped) {
+            out[ln.ray[l]] = CastHit::miss(ln.iters[l] - 1, true);
+            ln.ray[l] = IDLE;
+        }
+        active &= !capped;
+        // Lane arithmetic: ray-plane times and the masks of each branch.
         let mut tc = [[F::zero(); W]; 3];
         let mut tc_max = [F::zero(); W];
         let mut tv_max = [F::zero(); W];
@@ -273,48 +275,42 @@ fn stream<F: CastReal, A: Addressing>(
             tc_max[l] = sel(m01 < tc[2][l], m01, tc[2][l]);
             let cm = ln.desc[l] << (ln.idx[l] ^ ln.octant[l]);
             cmask[l] = cm;
-            let valid = cm & 0x8000 != 0 && ln.t_min[l] <= ln.t_max[l];
-            let lod_stop = lod_on && valid && tc_max[l] * dsz + osz >= ln.scale_exp2[l];
+            let valid = (cm & 0x8000 != 0) & (ln.t_min[l] <= ln.t_max[l]);
+            let lod_stop = lod_on & valid & (tc_max[l] * dsz + osz >= ln.scale_exp2[l]);
             tv_max[l] = sel(ln.t_max[l] < tc_max[l], ln.t_max[l], tc_max[l]);
-            let inter = valid && !lod_stop && ln.t_min[l] <= tv_max[l];
+            let inter = valid & !lod_stop & (ln.t_min[l] <= tv_max[l]);
             let leaf = cm & 0x80 == 0;
-            stop_m[l] = lod_stop || (inter && leaf);
+            stop_m[l] = lod_stop | (inter & leaf);
             stop_leaf[l] = leaf;
-            push[l] = inter && !leaf;
+            push[l] = inter & !leaf;
         }
-        // Stops (per lane): the hit, and the lane is free.
+        let (mut stops, mut pushes) = (0u32, 0u32);
         for l in 0..W {
-            if stop_m[l] && ln.ray[l] != IDLE {
-                let i = ln.ray[l];
-                out[i] = finish::<F, A>(
-                    nodes,
-                    depth,
-                    o[i],
-                    d[i],
-                    p,
-                    &ln.st[l],
-                    &ln.stop(l, stop_leaf[l]),
-                );
-                ln.ray[l] = IDLE;
-            }
+            stops |= (stop_m[l] as u32) << l;
+            pushes |= (push[l] as u32) << l;
         }
-        // PUSH: stack writes and child address per lane, the rest blended.
-        for l in 0..W {
-            if push[l] && ln.ray[l] != IDLE {
-                let s = ln.scale[l] as usize;
-                if tc_max[l] < ln.h[l] {
-                    ln.stack_node[l][s] = ln.parent[l];
-                    ln.stack_tmax[l][s] = ln.t_max[l];
-                }
-                let shift = ln.idx[l] ^ ln.octant[l];
-                ln.parent[l] = A::child(
-                    nodes,
-                    ln.parent[l] as usize,
-                    ln.desc[l],
-                    cmask[l],
-                    shift ^ 7,
-                ) as u32;
-            }
+        stops &= active;
+        // Stops: the hit, and the lane is free.
+        for l in bits(stops) {
+            let i = ln.ray[l];
+            let stop = ln.stop(l, stop_leaf[l]);
+            out[i] = finish::<F, A>(nodes, depth, o[i], d[i], p, &ln.st[l], &stop);
+            ln.ray[l] = IDLE;
+        }
+        // PUSH: stack write and child address per lane, the rest blended.
+        for l in bits(pushes & active) {
+            let s = ln.scale[l] as usize;
+            let keep = tc_max[l] < ln.h[l];
+            ln.stack_node[l][s] = sel(keep, ln.parent[l], ln.stack_node[l][s]);
+            ln.stack_tmax[l][s] = sel(keep, ln.t_max[l], ln.stack_tmax[l][s]);
+            let shift = ln.idx[l] ^ ln.octant[l];
+            ln.parent[l] = A::child(
+                nodes,
+                ln.parent[l] as usize,
+                ln.desc[l],
+                cmask[l],
+                shift ^ 7,
+            ) as u32;
         }
         let mut pop = [false; W];
         let mut step = [0u32; W];
@@ -343,19 +339,19 @@ fn stream<F: CastReal, A: Addressing>(
             let idx_adv = ln.idx[l] ^ idx_step;
             ln.idx[l] = sel(pu, idx_push, idx_adv);
             step[l] = idx_step;
-            pop[l] = !pu && idx_adv & idx_step != 0;
+            pop[l] = !pu & (idx_adv & idx_step != 0);
+        }
+        let mut pops = 0u32;
+        for l in 0..W {
+            pops |= (pop[l] as u32) << l;
         }
         // POP (per lane): the highest differing bit, the stack, rounding.
-        for l in 0..W {
-            if !pop[l] || ln.ray[l] == IDLE || stop_m[l] {
-                continue;
-            }
+        for l in bits(pops & active & !stops) {
             let se = ln.scale_exp2[l];
             let mut diff = 0u64;
             for a in 0..3 {
-                if step[l] >> a & 1 != 0 {
-                    diff |= ln.pos[a][l].bits() ^ (ln.pos[a][l] + se).bits();
-                }
+                let x = ln.pos[a][l].bits() ^ (ln.pos[a][l] + se).bits();
+                diff |= sel(step[l] >> a & 1 != 0, x, 0);
             }
             diff >>= F::EXTRA;
             let scale = 63 - diff.leading_zeros() as i32;
@@ -380,6 +376,18 @@ fn stream<F: CastReal, A: Addressing>(
             ln.desc[l] = 0;
         }
     }
+}
+
+/// The indices of the set bits of `m`, lowest first.
+#[inline(always)]
+fn bits(mut m: u32) -> impl Iterator<Item = usize> {
+    std::iter::from_fn(move || {
+        (m != 0).then(|| {
+            let l = m.trailing_zeros() as usize;
+            m &= m - 1;
+            l
+        })
+    })
 }
 
 #[cfg(test)]
