@@ -37,7 +37,17 @@ pub enum Through<'a> {
     Contours(&'a Octree, &'a [u32]),
 }
 
-impl Through<'_> {
+impl<'a> Through<'a> {
+    /// What a scene with these parts is cast through: the DAG when there is
+    /// one (it has no contours), else the octree with or without contours.
+    pub fn pick(tree: &'a Octree, dag: Option<&'a Dag>, contours: Option<&'a [u32]>) -> Self {
+        match (dag, contours) {
+            (Some(g), _) => Through::Dag(g),
+            (None, Some(cs)) => Through::Contours(tree, cs),
+            (None, None) => Through::Octree(tree),
+        }
+    }
+
     /// The CPU cast of every ray (the GPU kernel's twin for `F = f32`).
     pub fn cast_all<F: CastReal>(
         &self,
@@ -67,14 +77,6 @@ impl Through<'_> {
             (CastPath::Packet, Through::Contours(..)) => Err(Error::NotSupported(
                 "the packet cast has no contours: use cast: per_ray".into(),
             )),
-        }
-    }
-
-    /// The structure's node words and depth.
-    pub fn nodes(&self) -> (&[u32], u32) {
-        match *self {
-            Through::Octree(t) | Through::Contours(t, _) => (&t.nodes, t.depth),
-            Through::Dag(g) => (&g.nodes, g.depth),
         }
     }
 

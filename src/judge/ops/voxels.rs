@@ -8,6 +8,7 @@
 //! | `voxels.sphere_bounds` | analytic entry distances of the spheres r -+ half a voxel diagonal (sphere scenes) |
 //! | `voxels.bench` | Mrays/s of octree and referee, coherent and incoherent, build time, bytes per voxel |
 //!
+//! `params.cast`: `per_ray` (default) or `packet` (src/voxels/packet.rs, identical outputs).
 //! Ray sources (`params.rays`): `camera` (default: the scene's camera, tensors
 //! shaped (H, W)), `hard` (`count` rays of each hard kind, shaped (N,), plus
 //! `kind` (int32)), `incoherent` (`count` rays, origins uniform in the box,
@@ -33,10 +34,11 @@ use crate::voxels::dag::{build_dag, Dag};
 use crate::voxels::octree::{build, Octree};
 use crate::voxels::outputs::{build_metrics, put_hits};
 use crate::voxels::raysets::{hard, incoherent, HARD_KINDS};
-use crate::voxels::render::{cast_all, cast_all_contours, cast_all_dag, referee_all, Structure};
+use crate::voxels::render::{cast_all, referee_all, Structure};
 use crate::voxels::shape::Shape;
+use crate::voxels::through::{CastPath, Through};
 
-const RAY_PARAMS: &[&str] = &["rays", "count", "seed"];
+const RAY_PARAMS: &[&str] = &["rays", "count", "seed", "cast"];
 
 pub const OPS: &[OpEntry] = &[
     OpEntry {
@@ -192,8 +194,7 @@ fn render_in<F: CastReal>(
     ctx: &OpCtx,
     sc: &VoxelScene,
     tree: &Octree,
-    dag: Option<&Dag>,
-    contours: Option<&[u32]>,
+    through: Through,
 ) -> Result<Outputs> {
     let b = batch::<F>(ctx, sc)?;
     let n = b.o.len() as u64;
@@ -207,15 +208,12 @@ fn render_in<F: CastReal>(
         lod: sc.lod,
         max_iter: sc.max_iter,
     };
+    let path: CastPath = ctx.param_or("cast", CastPath::PerRay)?;
     let t0 = Instant::now();
-    let h = match (dag, contours) {
-        (Some(g), _) => cast_all_dag::<F>(g, &b.o, &b.d, &p),
-        (None, Some(cs)) => cast_all_contours::<F>(tree, cs, &b.o, &b.d, &p).0,
-        (None, None) => cast_all::<F>(tree, &b.o, &b.d, &p),
-    };
+    let h = through.cast_by::<F>(path, &b.o, &b.d, &p)?;
     let s = t0.elapsed().as_secs_f64();
     let mut out = Outputs::default();
-    if let Some(g) = dag {
+    if let Through::Dag(g) = through {
         super::voxels_dag::dag_metrics(&mut out, g);
     }
     if ctx.dump {
@@ -236,26 +234,30 @@ fn render_in<F: CastReal>(
 fn render(ctx: &OpCtx) -> Result<Outputs> {
     let sc = load(ctx)?;
     let tree = build(&sc.shape, sc.depth, &ctx.budget)?;
+    let (dag, contours) = parts(ctx, &sc, &tree)?;
+    let through = Through::pick(&tree, dag.as_ref(), contours.as_deref());
     if ctx.backend == BackendKind::Gpu {
-        if sc.structure != Structure::Octree || sc.contours {
-            return Err(Error::NotSupported(format!(
-                "{}: the GPU cast reads the octree without contours (structure: dag and contours run on the CPU)",
-                ctx.case_id
-            )));
-        }
-        return super::voxels_gpu::render_gpu(ctx, &sc, &tree);
+        return super::voxels_gpu::render_gpu(ctx, &sc, &tree, through);
     }
+    by_precision!(ctx, render_in(ctx, &sc, &tree, through))
+}
+
+/// The scene's DAG and contours, when it asks for them.
+pub(super) fn parts(
+    ctx: &OpCtx,
+    sc: &VoxelScene,
+    tree: &Octree,
+) -> Result<(Option<Dag>, Option<Vec<u32>>)> {
     let dag = match sc.structure {
         Structure::Octree => None,
-        Structure::Dag => Some(build_dag(&tree, &ctx.budget)?),
+        Structure::Dag => Some(build_dag(tree, &ctx.budget)?),
     };
     let contours = if sc.contours {
-        Some(fit_all(&sc.shape, &tree)?)
+        Some(fit_all(&sc.shape, tree)?)
     } else {
         None
     };
-    let (g, cs) = (dag.as_ref(), contours.as_deref());
-    by_precision!(ctx, render_in(ctx, &sc, &tree, g, cs))
+    Ok((dag, contours))
 }
 
 pub(super) fn widen<F: Real>(b: &Batch<F>) -> (Vec<[f64; 3]>, Vec<[f64; 3]>) {

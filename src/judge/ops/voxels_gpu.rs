@@ -2,11 +2,12 @@
 //!
 //! | op | what |
 //! | --- | --- |
-//! | `voxels.render` with `backend: gpu` | the same outputs as the CPU row; camera rays are generated on the GPU |
+//! | `voxels.render` with `backend: gpu` | the same outputs as the CPU row (octree, `structure: dag`, `contours: true`); camera rays are generated on the GPU |
 //! | `voxels.gpu_parity` | GPU and CPU f32 casts of the same rays (the GPU's own camera rays read back), and the f64 referee's verdict on every ray where they differ |
-//! | `voxels.gpu_bench` | CPU per-ray and GPU casts of one octree in one run (perf scenarios) |
+//! | `voxels.gpu_bench` | CPU per-ray, CPU packet and GPU casts of the octree and the DAG in one run (perf scenarios) |
 //!
-//! `voxels.gpu_parity` outputs the GPU's `hit`, `t`, `leaf`, `normal`,
+//! `voxels.gpu_parity` casts through the scene's structure (octree, DAG,
+//! contours) on both sides and outputs the GPU's `hit`, `t`, `leaf`, `normal`,
 //! `iters`, `leaf_key`, the CPU's as `cpu_*`, and `excused` (uint8): 1 on a
 //! ray whose GPU and CPU leaves differ and that the referee flags as a tie
 //! or as within `ulp_margin` world units (default 2^-22, one f32 ulp of the
@@ -16,11 +17,12 @@
 
 use std::time::Instant;
 
-use super::voxels::{batch, camera_batch, dump_rays, from64, load, Batch};
+use super::voxels::{batch, camera_batch, dump_rays, from64, load, parts, Batch};
+use super::voxels_dag::dag_metrics;
 use super::{BackendKind, OpCtx, OpEntry, Support};
 use crate::budget::bytes_for;
 use crate::error::{Error, Result};
-use crate::gpu::voxels::{GpuCast, GpuOctree};
+use crate::gpu::voxels::GpuCast;
 use crate::gpu::GpuContext;
 use crate::judge::measure::timed;
 use crate::rays::Rays;
@@ -28,12 +30,14 @@ use crate::real::Precision;
 use crate::scene::voxels::VoxelScene;
 use crate::tensor::{Outputs, Tensor};
 use crate::voxels::cast::CastParams;
+use crate::voxels::dag::build_dag;
 use crate::voxels::gpu::{gpu_params, hits_from_gpu};
 use crate::voxels::octree::{build, Octree};
 use crate::voxels::outputs::{build_metrics, put_hits};
 use crate::voxels::raysets::incoherent;
 use crate::voxels::referee::referee;
-use crate::voxels::render::{cast_all, VoxelHits};
+use crate::voxels::render::VoxelHits;
+use crate::voxels::through::{CastPath, Through};
 
 pub const OPS: &[OpEntry] = &[
     OpEntry {
@@ -45,7 +49,7 @@ pub const OPS: &[OpEntry] = &[
     },
     OpEntry {
         name: "voxels.gpu_bench",
-        doc: "CPU per-ray vs GPU octree cast in one run, coherent (size^2 camera) and incoherent (count): Mrays/s, Mrays/CPU-s, mean iterations, node bytes per ray",
+        doc: "CPU per-ray, CPU packet and GPU casts of octree and DAG in one run, coherent (size^2 camera) and incoherent (count): Mrays/CPU-s, GPU Mrays/s, packet speedup, mean iterations, node bytes per ray",
         params: &["count", "size", "seed"],
         support: Support::GpuF32,
         run: gpu_bench,
@@ -75,7 +79,7 @@ fn cast_params(sc: &VoxelScene, near: f64, far: f64) -> CastParams {
 
 /// Casts the case's rays on the GPU: camera rays are generated there (and
 /// read back when `keep_rays`), other sources are uploaded.
-fn gpu_run(ctx: &OpCtx, sc: &VoxelScene, tree: &Octree, keep_rays: bool) -> Result<GpuRun> {
+fn gpu_run(ctx: &OpCtx, sc: &VoxelScene, through: Through, keep_rays: bool) -> Result<GpuRun> {
     if ctx.precision != Precision::F32 {
         return Err(Error::NotSupported(format!(
             "{}: the GPU computes in f32 only",
@@ -83,7 +87,7 @@ fn gpu_run(ctx: &OpCtx, sc: &VoxelScene, tree: &Octree, keep_rays: bool) -> Resu
         )));
     }
     let gpu = GpuContext::get()?;
-    let g = GpuOctree::new(gpu, &tree.nodes, tree.depth)?;
+    let g = through.upload(gpu)?;
     let src: String = ctx.param_or("rays", "camera".to_string())?;
     if ctx.rays.is_none() && src == "camera" {
         let (cam, gen) = sc.view.build()?;
@@ -123,9 +127,9 @@ fn gpu_run(ctx: &OpCtx, sc: &VoxelScene, tree: &Octree, keep_rays: bool) -> Resu
 }
 
 /// `voxels.render` on the GPU (called by the CPU row for `backend: gpu`).
-pub fn render_gpu(ctx: &OpCtx, sc: &VoxelScene, tree: &Octree) -> Result<Outputs> {
+pub fn render_gpu(ctx: &OpCtx, sc: &VoxelScene, tree: &Octree, th: Through) -> Result<Outputs> {
     let t0 = Instant::now();
-    let r = gpu_run(ctx, sc, tree, ctx.dump)?;
+    let r = gpu_run(ctx, sc, th, ctx.dump)?;
     let wall = t0.elapsed().as_secs_f64();
     let n = r.cast.hits.len() as u64;
     let mut out = Outputs::default();
@@ -161,6 +165,9 @@ pub fn render_gpu(ctx: &OpCtx, sc: &VoxelScene, tree: &Octree) -> Result<Outputs
         out.tensor("kind", Tensor::from_shape_vec(&r.shape, k)?);
     }
     build_metrics(&mut out, tree);
+    if let Through::Dag(g) = th {
+        dag_metrics(&mut out, g);
+    }
     Ok(out)
 }
 
@@ -199,14 +206,16 @@ fn gpu_parity(ctx: &OpCtx) -> Result<Outputs> {
         ));
     }
     let tree = build(&sc.shape, sc.depth, &ctx.budget)?;
-    let r = gpu_run(ctx, &sc, &tree, true)?;
+    let (dag, contours) = parts(ctx, &sc, &tree)?;
+    let th = Through::pick(&tree, dag.as_ref(), contours.as_deref());
+    let r = gpu_run(ctx, &sc, th, true)?;
     // The CPU cast runs with the kernel's iteration cap, so a capped ray is
     // capped on both.
     let p = CastParams {
         max_iter: r.cast.max_iter,
         ..r.params
     };
-    let cpu = cast_all::<f32>(&tree, &r.o, &r.d, &p);
+    let cpu = th.cast_all::<f32>(&r.o, &r.d, &p);
     let gpu = hits_from_gpu(&r.cast.hits);
     let n = gpu.hit.len();
     // The referee judges only the rays whose leaves differ.
@@ -268,12 +277,14 @@ fn mean(v: impl Iterator<Item = f64>) -> f64 {
     s / n.max(1) as f64
 }
 
-/// The CPU per-ray cast and the GPU cast of the same octree, in one run:
-/// coherent = the scene camera at `size`^2 (the GPU generates its rays, the
-/// CPU casts `f_ray::<f32>`'s), incoherent = `count` seeded rays, origins
-/// uniform in the box, uniform directions (the same rays on both). GPU
-/// seconds are submit to readback after one warm-up batch (lavapipe
-/// compiles on first dispatch); the node upload is `gpu_upload_s`.
+/// Per structure (octree, DAG): the CPU per-ray cast, the CPU packet cast
+/// and the GPU cast of the same rays, in one run: coherent = the scene
+/// camera at `size`^2 (the GPU generates its own camera rays), incoherent =
+/// `count` seeded rays. Metrics `{structure}_{path}_{set}_mrays_per_cpu_s`
+/// (CPU paths), `{structure}_gpu_{set}_mrays_per_s`,
+/// `{structure}_{set}_packet_speedup` (per CPU-second, same run),
+/// `{structure}_{set}_mean_iters`, `{structure}_{set}_node_bytes_per_ray`
+/// (4 x node words the kernel read; the CPU casts read the same words).
 fn gpu_bench(ctx: &OpCtx) -> Result<Outputs> {
     need_gpu(ctx, "voxels.gpu_bench")?;
     if ctx.precision != Precision::F32 {
@@ -291,84 +302,71 @@ fn gpu_bench(ctx: &OpCtx) -> Result<Outputs> {
         bytes_for(count as u64 + size as u64 * size as u64, 200),
     )?;
     let tree = build(&sc.shape, sc.depth, &ctx.budget)?;
+    let dag = build_dag(&tree, &ctx.budget)?;
     let gpu = GpuContext::get()?;
-    let t0 = Instant::now();
-    let g = GpuOctree::new(gpu, &tree.nodes, tree.depth)?;
-    let upload_s = t0.elapsed().as_secs_f64();
-    let threads = rayon::current_num_threads() as f64;
     let mut out = Outputs::default();
-    out.metric("threads", threads)
-        .metric("gpu_upload_s", upload_s);
+    out.metric("threads", rayon::current_num_threads() as f64);
     build_metrics(&mut out, &tree);
-
+    dag_metrics(&mut out, &dag);
     let coh: Batch<f32> = camera_batch(ctx, &sc, Some(size))?;
     let (io, id) = from64::<f32>(incoherent(count, seed));
     let (_, mut gen) = sc.view.build()?;
-    gen.width = size;
-    gen.height = size;
-    gen.roi = None;
+    (gen.width, gen.height, gen.roi) = (size, size, None);
     let cam = sc.view.camera.build(size, size)?;
     let p_coh = cast_params(&sc, gen.near, gen.far);
     let p_inc = cast_params(&sc, 0.0, f64::INFINITY);
-    let packed: Vec<[f32; 6]> = io
-        .iter()
-        .zip(&id)
+    let packed: Vec<[f32; 6]> = (io.iter().zip(&id))
         .map(|(o, d)| [o[0], o[1], o[2], d[0], d[1], d[2]])
         .collect();
-    // Warm-up: the first dispatch of each entry compiles it.
-    g.cast_rays(
-        &packed[..packed.len().min(64)],
-        &gpu_params(&p_inc),
-        &ctx.budget,
-    )?;
-    let mut warm = gen.clone();
-    warm.roi = Some(crate::rays::Roi {
-        x: 0,
-        y: 0,
-        width: 8.min(size),
-        height: 8.min(size),
-    });
-    g.cast_camera(&cam, &warm, &gpu_params(&p_coh), false, &ctx.budget)?;
-
-    let runs = [
-        ("coherent", &coh.o[..], &coh.d[..], p_coh),
-        ("incoherent", &io[..], &id[..], p_inc),
-    ];
-    for (name, o, d, p) in runs {
-        let (h, wall, cpu) = timed(|| cast_all::<f32>(&tree, o, d, &p));
-        let n = o.len() as f64;
-        out.metric(
-            &format!("cpu_{name}_mrays_per_s"),
-            n / wall.max(1e-12) / 1e6,
-        );
-        out.metric(
-            &format!("cpu_{name}_mrays_per_cpu_s"),
-            if cpu > 0.0 { n / cpu / 1e6 } else { 0.0 },
-        );
-        out.metric(
-            &format!("{name}_mean_iters"),
-            mean(h.iters.iter().map(|&x| x as f64)),
-        );
-        let gc = if name == "coherent" {
-            g.cast_camera(&cam, &gen, &gpu_params(&p), false, &ctx.budget)?
-        } else {
-            g.cast_rays(&packed, &gpu_params(&p), &ctx.budget)?
-        };
-        let m = gc.hits.len() as f64;
-        let rate = m / gc.gpu_s.max(1e-12) / 1e6;
-        out.metric(&format!("gpu_{name}_mrays_per_s"), rate);
-        out.metric(
-            &format!("gpu_{name}_mean_iters"),
-            mean(gc.hits.iter().map(|h| h.iters as f64)),
-        );
-        out.metric(
-            &format!("{name}_node_bytes_per_ray"),
-            4.0 * mean(gc.hits.iter().map(|h| h.loads() as f64)),
-        );
-        out.metric(
-            &format!("{name}_gpu_over_cpu"),
-            rate / (n / wall.max(1e-12) / 1e6).max(1e-12),
-        );
+    for (sname, through) in [
+        ("octree", Through::Octree(&tree)),
+        ("dag", Through::Dag(&dag)),
+    ] {
+        let g = through.upload(gpu)?;
+        // Warm-up: the first dispatch of each entry compiles it.
+        g.cast_rays(
+            &packed[..packed.len().min(64)],
+            &gpu_params(&p_inc),
+            &ctx.budget,
+        )?;
+        for (set, o, d, p) in [
+            ("coherent", &coh.o[..], &coh.d[..], p_coh),
+            ("incoherent", &io[..], &id[..], p_inc),
+        ] {
+            let n = o.len() as f64;
+            let mut per_cpu_s = [0.0; 2];
+            for (k, path) in [CastPath::PerRay, CastPath::Packet].into_iter().enumerate() {
+                let (h, _, cpu) = timed(|| through.cast_by(path, o, d, &p));
+                h?;
+                per_cpu_s[k] = n / cpu.max(1e-3) / 1e6;
+                out.metric(
+                    &format!("{sname}_{}_{set}_mrays_per_cpu_s", ["per_ray", "packet"][k]),
+                    per_cpu_s[k],
+                );
+            }
+            out.metric(
+                &format!("{sname}_{set}_packet_speedup"),
+                per_cpu_s[1] / per_cpu_s[0],
+            );
+            let gc = if set == "coherent" {
+                g.cast_camera(&cam, &gen, &gpu_params(&p), false, &ctx.budget)?
+            } else {
+                g.cast_rays(&packed, &gpu_params(&p), &ctx.budget)?
+            };
+            let m = gc.hits.len() as f64;
+            out.metric(
+                &format!("{sname}_gpu_{set}_mrays_per_s"),
+                m / gc.gpu_s.max(1e-12) / 1e6,
+            );
+            out.metric(
+                &format!("{sname}_{set}_mean_iters"),
+                mean(gc.hits.iter().map(|h| h.iters as f64)),
+            );
+            out.metric(
+                &format!("{sname}_{set}_node_bytes_per_ray"),
+                4.0 * mean(gc.hits.iter().map(|h| h.loads() as f64)),
+            );
+        }
     }
     Ok(out)
 }
