@@ -1,10 +1,16 @@
 // voxels.wgsl: the Laine-Karras ESVO ray cast (seed 003) through the octree
-// of src/voxels/octree.rs, one invocation per ray, in f32.
-// CPU twin: src/voxels/cast.rs `cast` (the f32 instance, `cast::<f32>`);
-// entry `cast_camera` also runs common.wgsl `camera_ray` (CPU twin
+// of src/voxels/octree.rs or the DAG of src/voxels/dag.rs, one invocation
+// per ray, in f32.
+// CPU twin: src/voxels/cast.rs `cast_with` (the f32 instance): with
+// ADDRESSING = 0 `cast::<f32>` (octree, `Relative`), ADDRESSING = 1
+// `cast_dag::<f32>` (DAG, `Absolute`), CONTOURS = 1 `cast_contours::<f32>`.
+// The two override constants pick the policy per pipeline, as the CPU's
+// generic `A: Addressing` does per instance: one loop, two addressing policies.
+// Entry `cast_camera` also runs common.wgsl `camera_ray` (CPU twin
 // src/rays.rs `f_ray`), entry `cast_rays` reads given rays.
-// Parity case: TESTS/voxels/manifest_gpu.yaml `voxel_gpu_*_parity` (GPU vs
-// CPU f32 on the same rays: identical leaf except referee-flagged near ties)
+// Parity cases: TESTS/voxels/manifest_gpu.yaml `voxel_gpu_*_parity` (GPU vs
+// CPU f32 on the same rays: identical leaf except referee-flagged near ties;
+// `voxel_gpu_dag_*` for the DAG, `voxel_gpu_*_contour_*` for contours)
 // and `voxel_gpu_*_deterministic` (two GPU runs, memcmp).
 // Host side: src/gpu/voxels.rs (struct `VoxParams` = `VoxParams` here,
 // `GpuVoxelHit` = `VoxHit`).
@@ -22,8 +28,19 @@
 // clamped by the host to the driver's loop cap (src/gpu/voxels.rs); a
 // driver whose division is not correctly rounded (WGSL allows 2.5 ulp) can
 // move a ray across a near tie; lavapipe divides exactly.
+// Contours: the 32-bit code is unpacked here; its normal (18 bits), offset
+// and thickness (7 bits each) index `contour_lut`, a table the host fills
+// with src/voxels/contour.rs `decode::<f32>` of every code (f64 math
+// rounded to f32: WGSL has no f64), so both sides use the same f32 values.
 
 const S_MAX: i32 = 23;
+// 0: octree (relative child addressing), 1: DAG (absolute: child c at childPtr + c).
+override ADDRESSING: u32 = 0u;
+// 1: cut finest-level leaves to their contour slab (octree only, as on the CPU).
+override CONTOURS: u32 = 0u;
+// contour_lut layout: normals (3 f32 per 18-bit code), then 128 offsets, then 128 thicknesses.
+const LUT_P: u32 = 786432u;
+const LUT_H: u32 = 786560u;
 
 struct VoxParams {
     near: f32,
@@ -63,6 +80,9 @@ struct VoxHit {
 @group(0) @binding(3) var<storage, read> in_rays: array<f32>;
 @group(0) @binding(4) var<storage, read_write> out_hits: array<VoxHit>;
 @group(0) @binding(5) var<storage, read_write> out_rays: array<f32>;
+// Contour per attribute index (0: none) and the decode table; CONTOURS = 1 only.
+@group(0) @binding(6) var<storage, read> contours: array<u32>;
+@group(0) @binding(7) var<storage, read> contour_lut: array<f32>;
 
 fn exp2i(k: i32) -> f32 {
     return bitcast<f32>(u32(k + 127) << 23u);
@@ -78,6 +98,41 @@ fn max3(a: vec3<f32>) -> f32 {
 
 fn bits3(m: vec3<bool>) -> u32 {
     return select(0u, 1u, m.x) | select(0u, 2u, m.y) | select(0u, 4u, m.z);
+}
+
+fn fmin(a: f32, b: f32) -> f32 {
+    return select(b, a, a < b);
+}
+
+fn fmax(a: f32, b: f32) -> f32 {
+    return select(b, a, a > b);
+}
+
+// The t interval in which o + t d is inside the slab of contour v of the
+// voxel with centre c and edge s, (t0, t1), empty when t0 > t1.
+// CPU twin: src/voxels/contour.rs `slab_interval` (infinities are the
+// largest finite f32 here: the caller clamps them to the voxel's interval).
+fn slab_interval(v: u32, c: vec3<f32>, s: f32, o: vec3<f32>, d: vec3<f32>) -> vec2<f32> {
+    let k = 3u * (v >> 14u);
+    let n = vec3<f32>(contour_lut[k], contour_lut[k + 1u], contour_lut[k + 2u]);
+    let p = contour_lut[LUT_P + ((v >> 7u) & 0x7Fu)];
+    let h = contour_lut[LUT_H + (v & 0x7Fu)];
+    let s0 = n.x * (o.x - c.x) + n.y * (o.y - c.y) + n.z * (o.z - c.z) - p * s;
+    let nd = n.x * d.x + n.y * d.y + n.z * d.z;
+    let th = h * s;
+    let big = 3.4028235e38;
+    if (nd == 0.0) {
+        if (abs(s0) <= th) {
+            return vec2<f32>(-big, big);
+        }
+        return vec2<f32>(big, -big);
+    }
+    let a = (-th - s0) / nd;
+    let b = (th - s0) / nd;
+    if (a < b) {
+        return vec2<f32>(a, b);
+    }
+    return vec2<f32>(b, a);
 }
 
 fn miss(iters: u32, loads: u32, capped: bool) -> VoxHit {
@@ -102,6 +157,7 @@ fn esvo_cast(o: vec3<f32>, d: vec3<f32>) -> VoxHit {
     let b0 = coef * orig;
     let bias = select(b0, 3.0 * coef - b0, pos_dir);
     let octant = 7u ^ bits3(pos_dir);
+    let oct_set = (vec3<u32>(octant) & vec3<u32>(1u, 2u, 4u)) != vec3<u32>(0u);
     var t_min = max3(2.0 * coef - bias);
     var t_max = min3(coef - bias);
     var h = t_max;
@@ -124,6 +180,9 @@ fn esvo_cast(o: vec3<f32>, d: vec3<f32>) -> VoxHit {
     var loads = 0u;
     // 0: no voxel (miss), 1: solid leaf, 2: LOD cut at an inner node.
     var stop = 0u;
+    // The contour slab's t at the stopping leaf, when it has one.
+    var has_contour = false;
+    var t_contour = 0.0;
     loop {
         if (scale >= S_MAX) {
             break;
@@ -149,24 +208,51 @@ fn esvo_cast(o: vec3<f32>, d: vec3<f32>) -> VoxHit {
             let tv_max = min(t_max, tc_max);
             let halfs = scale_exp2 * 0.5;
             let tcen = halfs * coef + tc;
-            if (t_min <= tv_max) {
-                if ((child_masks & 0x80u) == 0u) {
+            if (t_min <= tv_max && (child_masks & 0x80u) == 0u) {
+                // A leaf: the hit, unless its contour's slab misses the ray.
+                var empty = false;
+                if (CONTOURS == 1u && S_MAX - scale == i32(V.depth)) {
+                    let c = child_shift ^ 7u;
+                    let leafmask = (desc >> 8u) & ~desc & 0xFFu;
+                    let at = nodes[2u * parent + 1u] + countOneBits(leafmask & ((1u << c) - 1u));
+                    loads += 1u;
+                    var v = 0u;
+                    if (at < arrayLength(&contours)) {
+                        v = contours[at];
+                    }
+                    if (v != 0u) {
+                        let lo = select(3.0 - scale_exp2 - pos, pos, oct_set);
+                        let cen = 2.0 * lo + scale_exp2 - 3.0;
+                        let ab = slab_interval(v, cen, 2.0 * scale_exp2, o, d);
+                        let ta = fmax(t_min, ab.x);
+                        empty = ta > fmin(tv_max, ab.y);
+                        has_contour = !empty;
+                        t_contour = ta;
+                    }
+                }
+                if (!empty) {
                     stop = 1u;
                     break;
                 }
+            } else if (t_min <= tv_max) {
                 // PUSH
                 if (tc_max < h) {
                     stack_node[scale] = parent;
                     stack_tmax[scale] = t_max;
                 }
                 h = tc_max;
-                var ofs = desc >> 17u;
-                if ((desc & 0x10000u) != 0u) {
-                    ofs = nodes[2u * (parent + ofs)];
+                if (ADDRESSING == 1u) {
+                    parent = nodes[2u * parent + 1u] + (child_shift ^ 7u);
                     loads += 1u;
+                } else {
+                    var ofs = desc >> 17u;
+                    if ((desc & 0x10000u) != 0u) {
+                        ofs = nodes[2u * (parent + ofs)];
+                        loads += 1u;
+                    }
+                    ofs += countOneBits(child_masks & 0x7Fu);
+                    parent += ofs;
                 }
-                ofs += countOneBits(child_masks & 0x7Fu);
-                parent += ofs;
                 scale -= 1;
                 scale_exp2 = halfs;
                 let m = tcen > vec3<f32>(t_min);
@@ -224,7 +310,7 @@ fn esvo_cast(o: vec3<f32>, d: vec3<f32>) -> VoxHit {
     }
     let level = u32(S_MAX - scale);
     var attr = 0xFFFFFFFFu;
-    if (stop == 1u) {
+    if (stop == 1u && ADDRESSING == 0u) {
         let c = (idx ^ octant) ^ 7u;
         let leafmask = (desc >> 8u) & ~desc & 0xFFu;
         attr = nodes[2u * parent + 1u] + countOneBits(leafmask & ((1u << c) - 1u));
@@ -236,7 +322,6 @@ fn esvo_cast(o: vec3<f32>, d: vec3<f32>) -> VoxHit {
     }
     let grid = exp2i(i32(V.depth) - 1);
     // Undo the mirroring to get the voxel's low corner in [1, 2).
-    let oct_set = (vec3<u32>(octant) & vec3<u32>(1u, 2u, 4u)) != vec3<u32>(0u);
     let lo_oct = select(3.0 - scale_exp2 - pos, pos, oct_set);
     var t = t_min;
     if (entered >= 0 && d[entered] != 0.0) {
@@ -247,6 +332,9 @@ fn esvo_cast(o: vec3<f32>, d: vec3<f32>) -> VoxHit {
         }
         let x = 2.0 * face - 3.0;
         t = max((x - o[a]) / d[a], V.near);
+    }
+    if (has_contour) {
+        t = t_contour;
     }
     let hitp = o + t * d;
     let box_idx = vec3<u32>((lo_oct - 1.0) * exp2i(i32(level)));

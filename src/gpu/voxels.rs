@@ -1,8 +1,9 @@
-//! The ESVO octree cast on the GPU (`kernels/voxels.wgsl`): [`GpuOctree`]
-//! holds one scene's nodes, uploaded once, and casts batches of camera rays
-//! (generated on the GPU by common.wgsl `camera_ray`, entry `cast_camera`)
-//! or given rays (entry `cast_rays`). CPU twin: `src/voxels/cast.rs` `cast`
-//! (`cast::<f32>`); parity cases `voxel_gpu_*` in
+//! The ESVO octree and DAG casts on the GPU (`kernels/voxels.wgsl`):
+//! [`GpuOctree`] holds one scene's nodes (octree or DAG, with contours when
+//! asked), uploaded once, and casts batches of camera rays (generated on the
+//! GPU by common.wgsl `camera_ray`, entry `cast_camera`) or given rays
+//! (entry `cast_rays`). CPU twins: `src/voxels/cast.rs` `cast`, `cast_dag`,
+//! `cast_contours` (f32); parity cases `voxel_gpu_*` in
 //! `TESTS/voxels/manifest_gpu.yaml`. Inputs are plain node words and f32
 //! parameters: nothing here imports the voxel renderer.
 
@@ -10,7 +11,7 @@ use bytemuck::{Pod, Zeroable};
 
 use super::buffers::{run, storage_in, storage_out, uniform, Pass};
 use super::context::GpuContext;
-use super::kernels::pipeline;
+use super::kernels::pipeline_with;
 use super::rays::RayParams;
 use crate::budget::{bytes_for, MemBudget};
 use crate::camera::Camera;
@@ -97,11 +98,36 @@ pub struct GpuCast {
     pub max_iter: u32,
 }
 
-/// One scene's octree on the GPU: the node buffer (uploaded once) and the
-/// two pipelines of `kernels/voxels.wgsl`.
+/// How the kernel finds a node's children (its `ADDRESSING` override
+/// constant; the CPU's `voxels::cast::Addressing` policies).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum GpuAddressing {
+    /// ESVO octree: relative pointer, popcount, far pointers.
+    Relative = 0,
+    /// DAG: child `c` at the absolute slot `high word + c`.
+    Absolute = 1,
+}
+
+/// Contours for the kernel: `codes[attr]` (0: none) and the decode table
+/// (`kernels/voxels.wgsl` `contour_lut`: 3 f32 per 18-bit normal code,
+/// then 128 offsets, then 128 thicknesses).
+#[derive(Clone, Copy, Debug)]
+pub struct GpuContours<'a> {
+    pub codes: &'a [u32],
+    pub lut: &'a [f32],
+}
+
+/// Length of the contour decode table.
+pub const CONTOUR_LUT_LEN: usize = 3 * (1 << 18) + 2 * 128;
+
+/// One scene's octree (or DAG) on the GPU: the node and contour buffers
+/// (uploaded once) and the two pipelines of `kernels/voxels.wgsl`,
+/// specialised for the addressing and contours.
 pub struct GpuOctree<'c> {
     ctx: &'c GpuContext,
     nodes: wgpu::Buffer,
+    contours: wgpu::Buffer,
+    lut: wgpu::Buffer,
     depth: u32,
     camera: wgpu::ComputePipeline,
     given: wgpu::ComputePipeline,
@@ -115,6 +141,30 @@ fn batch_rays(ctx: &GpuContext) -> u64 {
 impl<'c> GpuOctree<'c> {
     /// Uploads `nodes` (the layout of `src/voxels/octree.rs`) of a depth-`depth` tree.
     pub fn new(ctx: &'c GpuContext, nodes: &[u32], depth: u32) -> Result<GpuOctree<'c>> {
+        Self::with(ctx, nodes, depth, GpuAddressing::Relative, None)
+    }
+
+    /// Uploads `nodes` in the layout `addressing` reads (`src/voxels/octree.rs`
+    /// or `src/voxels/dag.rs`), with `contours` (octree only).
+    pub fn with(
+        ctx: &'c GpuContext,
+        nodes: &[u32],
+        depth: u32,
+        addressing: GpuAddressing,
+        contours: Option<GpuContours>,
+    ) -> Result<GpuOctree<'c>> {
+        if let Some(c) = contours {
+            if addressing != GpuAddressing::Relative || c.lut.len() != CONTOUR_LUT_LEN {
+                return Err(Error::invalid(
+                    "gpu voxel contours",
+                    format!(
+                        "contours need the octree and a {CONTOUR_LUT_LEN}-entry table (got {:?}, {})",
+                        addressing,
+                        c.lut.len()
+                    ),
+                ));
+            }
+        }
         if nodes.len() < 2 || !nodes.len().is_multiple_of(2) || !(1..=22).contains(&depth) {
             return Err(Error::invalid(
                 "gpu voxel octree",
@@ -124,12 +174,19 @@ impl<'c> GpuOctree<'c> {
                 ),
             ));
         }
+        let k = [
+            ("ADDRESSING", addressing as u32 as f64),
+            ("CONTOURS", contours.is_some() as u32 as f64),
+        ];
+        let (codes, lut) = contours.map_or((&[0u32][..], &[0f32][..]), |c| (c.codes, c.lut));
         Ok(GpuOctree {
             ctx,
             nodes: storage_in(ctx, "voxel nodes", nodes)?,
+            contours: storage_in(ctx, "voxel contours", codes)?,
+            lut: storage_in(ctx, "voxel contour table", lut)?,
             depth,
-            camera: pipeline(ctx, "voxels", "cast_camera")?,
-            given: pipeline(ctx, "voxels", "cast_rays")?,
+            camera: pipeline_with(ctx, "voxels", "cast_camera", &k)?,
+            given: pipeline_with(ctx, "voxels", "cast_rays", &k)?,
         })
     }
 
@@ -202,7 +259,15 @@ impl<'c> GpuOctree<'c> {
         let pass = Pass {
             label: "cast_camera",
             pipeline: &self.camera,
-            buffers: &[(0, &cu), (1, &vu), (2, &self.nodes), (4, &hits), (5, &rays)],
+            buffers: &[
+                (0, &cu),
+                (1, &vu),
+                (2, &self.nodes),
+                (4, &hits),
+                (5, &rays),
+                (6, &self.contours),
+                (7, &self.lut),
+            ],
             n,
             wg: 64,
         };
@@ -249,7 +314,14 @@ impl<'c> GpuOctree<'c> {
             let pass = Pass {
                 label: "cast_rays",
                 pipeline: &self.given,
-                buffers: &[(1, &vu), (2, &self.nodes), (3, &inb), (4, &hits)],
+                buffers: &[
+                    (1, &vu),
+                    (2, &self.nodes),
+                    (3, &inb),
+                    (4, &hits),
+                    (6, &self.contours),
+                    (7, &self.lut),
+                ],
                 n: m,
                 wg: 64,
             };

@@ -140,7 +140,7 @@ pub struct CastHit<F> {
 }
 
 impl<F: CastReal> CastHit<F> {
-    fn miss(iters: u32, capped: bool) -> Self {
+    pub fn miss(iters: u32, capped: bool) -> Self {
         CastHit {
             hit: false,
             t: -F::one(),
@@ -279,17 +279,29 @@ pub fn cast_dag<F: CastReal>(
     cast_with::<F, Absolute>(nodes, depth, o, d, p, None)
 }
 
-/// The Laine–Karras loop, generic over the child addressing `A`. Per-axis
-/// loops index arrays as a WGSL kernel would.
-#[allow(clippy::needless_range_loop)]
-pub fn cast_with<F: CastReal, A: Addressing>(
-    nodes: &[u32],
-    depth: u32,
-    o: [F; 3],
-    d: [F; 3],
-    p: &CastParams,
-    contours: Option<&[u32]>,
-) -> CastHit<F> {
+/// A ray ready for the loop: the mirrored ray (`dir`, `coef`, `bias`,
+/// `octant`, t of axis a at coordinate x being `x * coef[a] - bias[a]`), its
+/// interval in the root box, the LOD footprint in octree units and the
+/// root's first child (`idx`, `pos`). Shared by [`cast_with`] and the
+/// packet cast ([`super::packet`]).
+#[derive(Clone, Copy, Debug)]
+pub struct Start<F> {
+    pub dir: [F; 3],
+    pub coef: [F; 3],
+    pub bias: [F; 3],
+    pub octant: u32,
+    pub t_min: F,
+    pub t_max: F,
+    pub h: F,
+    pub idx: u32,
+    pub pos: [F; 3],
+    pub lod: Option<(F, F)>,
+}
+
+/// The ray's [`Start`], or `None` when it misses the root box (or its
+/// interval ends before it).
+#[inline(always)]
+pub fn start<F: CastReal>(o: [F; 3], d: [F; 3], p: &CastParams) -> Option<Start<F>> {
     let one = F::one();
     let half = F::of(0.5);
     let eps = F::exp2i(F::EPS_LOG2);
@@ -317,26 +329,19 @@ pub fn cast_with<F: CastReal, A: Addressing>(
     let two = F::of(2.0);
     let mut t_min = max3([0, 1, 2].map(|a| two * coef[a] - bias[a]));
     let mut t_max = min3([0, 1, 2].map(|a| coef[a] - bias[a]));
-    let mut h = t_max;
+    let h = t_max;
     t_min = t_min.max(F::of(p.near));
     t_max = t_max.min(F::of(p.far));
     if t_min > t_max {
         // The ray misses the root box (or its interval ends before it):
         // ESVO would find this by advancing out of the root; stop now.
-        return CastHit::miss(0, false);
+        return None;
     }
     let lod = p
         .lod
         .map(|l| (F::of(l.orig_size) * half, F::of(l.dir_size) * half));
-
-    let mut stack_node = [0u32; S_MAX as usize + 1];
-    let mut stack_tmax = [F::zero(); S_MAX as usize + 1];
-    let mut parent = 0usize;
-    let mut desc = 0u32;
     let mut idx = 0u32;
     let mut pos = [one; 3];
-    let mut scale = S_MAX - 1;
-    let mut scale_exp2 = half;
     let c15 = F::of(1.5);
     for a in 0..3 {
         if c15 * coef[a] - bias[a] > t_min {
@@ -344,6 +349,71 @@ pub fn cast_with<F: CastReal, A: Addressing>(
             pos[a] = c15;
         }
     }
+    Some(Start {
+        dir,
+        coef,
+        bias,
+        octant,
+        t_min,
+        t_max,
+        h,
+        idx,
+        pos,
+        lod,
+    })
+}
+
+/// Where the loop stopped at a voxel: its mirrored position and scale, the
+/// node and child it is in, `t_min` there, whether it is a solid leaf (else
+/// an LOD cut), the contour slab's (t, contour) when one gave the hit.
+#[derive(Clone, Copy, Debug)]
+pub struct Stop<F> {
+    pub leaf: bool,
+    pub pos: [F; 3],
+    pub scale: i32,
+    pub scale_exp2: F,
+    pub t_min: F,
+    pub parent: usize,
+    pub desc: u32,
+    pub idx: u32,
+    pub contour_hit: Option<(F, u32)>,
+    pub iters: u32,
+}
+
+/// The Laine–Karras loop, generic over the child addressing `A`. Per-axis
+/// loops index arrays as a WGSL kernel would.
+#[allow(clippy::needless_range_loop)]
+pub fn cast_with<F: CastReal, A: Addressing>(
+    nodes: &[u32],
+    depth: u32,
+    o: [F; 3],
+    d: [F; 3],
+    p: &CastParams,
+    contours: Option<&[u32]>,
+) -> CastHit<F> {
+    let half = F::of(0.5);
+    let two = F::of(2.0);
+    let Some(st) = start(o, d, p) else {
+        return CastHit::miss(0, false);
+    };
+    let Start {
+        coef,
+        bias,
+        octant,
+        mut t_min,
+        mut t_max,
+        mut h,
+        mut idx,
+        mut pos,
+        lod,
+        ..
+    } = st;
+    let mut stack_node = [0u32; S_MAX as usize + 1];
+    let mut stack_tmax = [F::zero(); S_MAX as usize + 1];
+    let mut parent = 0usize;
+    let mut desc = 0u32;
+    let mut scale = S_MAX - 1;
+    let mut scale_exp2 = half;
     let mut iters = 0u32;
     let mut stop: Option<bool> = None; // Some(leaf?) when the loop stops at a voxel
     let mut contour_hit: Option<(F, u32)> = None;
@@ -458,7 +528,54 @@ pub fn cast_with<F: CastReal, A: Addressing>(
     let Some(leaf) = stop else {
         return CastHit::miss(iters, false);
     };
+    let stop = Stop {
+        leaf,
+        pos,
+        scale,
+        scale_exp2,
+        t_min,
+        parent,
+        desc,
+        idx,
+        contour_hit,
+        iters,
+    };
+    finish::<F, A>(nodes, depth, o, d, p, &st, &stop)
+}
 
+/// The hit at the voxel where the loop stopped (see the module doc for `t`,
+/// voxel and normal).
+#[inline(always)]
+pub fn finish<F: CastReal, A: Addressing>(
+    nodes: &[u32],
+    depth: u32,
+    o: [F; 3],
+    d: [F; 3],
+    p: &CastParams,
+    st: &Start<F>,
+    stop: &Stop<F>,
+) -> CastHit<F> {
+    let one = F::one();
+    let two = F::of(2.0);
+    let Start {
+        dir,
+        coef,
+        bias,
+        octant,
+        ..
+    } = *st;
+    let Stop {
+        leaf,
+        pos,
+        scale,
+        scale_exp2,
+        t_min,
+        parent,
+        desc,
+        idx,
+        contour_hit,
+        iters,
+    } = *stop;
     // Entry times of the voxel's faces (its mirrored high corner).
     let tent = [0, 1, 2].map(|a| (pos[a] + scale_exp2) * coef[a] - bias[a]);
     let te = max3(tent);

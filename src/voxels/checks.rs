@@ -18,6 +18,7 @@ use super::referee::referee;
 use super::referee_bounds::ball_entry;
 use super::render::{cast_all, cast_all_contours, VoxelHits};
 use super::shape::Shape;
+use super::through::Through;
 
 /// Max and 99th percentile (nearest rank) of `v` (0, 0 when empty).
 fn max_p99(mut v: Vec<f64>) -> (f64, f64) {
@@ -106,6 +107,7 @@ pub fn contour_error<F: CastReal>(
 }
 
 /// The GPU cast `g` of batch `b` against the CPU f32 cast of the same rays
+/// through the same structure `th`
 /// (with the kernel's iteration cap, so a capped ray is capped on both):
 /// the GPU's hits, the CPU's as `cpu_*`, `excused` / `not_excused` (see
 /// [`excused`]), `identical_frac` (scalar and metric), counters `rays`,
@@ -113,7 +115,7 @@ pub fn contour_error<F: CastReal>(
 /// (N, 9) when `dump`.
 #[allow(clippy::too_many_arguments)]
 pub fn gpu_parity(
-    tree: &Octree,
+    th: Through,
     g: &GpuCast,
     b: &Batch<f32>,
     p: &CastParams,
@@ -126,7 +128,7 @@ pub fn gpu_parity(
         max_iter: g.max_iter,
         ..*p
     };
-    let cpu = cast_all::<f32>(tree, &b.o, &b.d, &p);
+    let cpu = th.cast_all::<f32>(&b.o, &b.d, &p);
     let gpu = hits_from_gpu(&g.hits);
     let n = gpu.hit.len();
     let (excused, differ) = excused(&gpu, &cpu, (&b.o, &b.d), scene, &p, margin, case);

@@ -1,17 +1,34 @@
 //! The voxel renderer's GPU backend: the cast's parameters rounded to the
-//! kernel's f32 exactly as [`super::cast::cast::<f32>`] rounds them, and the
-//! kernel's per-ray results (`crate::gpu::voxels`, `kernels/voxels.wgsl`)
-//! in the renderer's [`VoxelHits`] conventions.
+//! kernel's f32 exactly as [`super::cast::cast::<f32>`] rounds them, the
+//! contour decode table, and the kernel's per-ray results
+//! (`crate::gpu::voxels`, `kernels/voxels.wgsl`) in the renderer's
+//! [`VoxelHits`] conventions. [`super::through::Through::upload`] puts a
+//! scene's structure on the GPU.
 
 use crate::budget::MemBudget;
 use crate::camera::Camera;
 use crate::error::Result;
-use crate::gpu::voxels::{GpuCast, GpuCastParams, GpuOctree, GpuVoxelHit};
+use crate::gpu::voxels::{GpuCast, GpuCastParams, GpuOctree, GpuVoxelHit, CONTOUR_LUT_LEN};
 use crate::rays::RayGen;
 
 use super::batch::Batch;
 use super::cast::CastParams;
+use super::contour::decode;
 use super::render::VoxelHits;
+
+/// The kernel's contour decode table (`kernels/voxels.wgsl` `contour_lut`):
+/// [`decode::<f32>`] of every 18-bit normal code (3 f32 each), then of the
+/// 128 offset codes, then of the 128 thickness codes, so the kernel uses
+/// the very f32 values the CPU cast computes in f64 and rounds.
+pub fn contour_lut() -> Vec<f32> {
+    let mut lut = Vec::with_capacity(CONTOUR_LUT_LEN);
+    for code in 0u32..1 << 18 {
+        lut.extend(decode::<f32>(code << 14).0);
+    }
+    lut.extend((0u32..128).map(|q| decode::<f32>(q << 7).1));
+    lut.extend((0u32..128).map(|q| decode::<f32>(q).2));
+    lut
+}
 
 /// The camera's rays cast on the GPU (generated there; read back into the
 /// returned batch when `keep_rays`), over `gen`'s `[near, far]`.
@@ -106,6 +123,30 @@ mod tests {
         let g = gpu_params(&p);
         assert_eq!((g.near, g.far, g.max_iter), (0.1f32, f32::MAX, 77));
         assert_eq!(g.lod, Some((0.3f32 * 0.5, 0.02f32 * 0.5)));
+    }
+
+    #[test]
+    fn contour_table_holds_the_cpu_decode_of_every_field() {
+        let lut = contour_lut();
+        assert_eq!(lut.len(), CONTOUR_LUT_LEN);
+        for v in [
+            0x1234_5678u32,
+            0xFFFF_FFFF,
+            0x8000_4081,
+            7 << 26 | 3 << 7 | 100,
+        ] {
+            let (n, p, h) = decode::<f32>(v);
+            let k = 3 * (v >> 14) as usize;
+            assert_eq!(&lut[k..k + 3], &n[..]);
+            assert_eq!(
+                lut[3 << 18 | (v >> 7 & 0x7F) as usize].to_bits(),
+                p.to_bits()
+            );
+            assert_eq!(
+                lut[(3 << 18) + 128 + (v & 0x7F) as usize].to_bits(),
+                h.to_bits()
+            );
+        }
     }
 
     #[test]

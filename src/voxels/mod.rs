@@ -13,12 +13,14 @@ pub mod dag;
 pub mod gpu;
 pub mod octree;
 pub mod outputs;
+pub mod packet;
 pub mod raysets;
 pub mod referee;
 pub mod referee_bounds;
 pub mod referee_dag;
 pub mod render;
 pub mod shape;
+pub mod through;
 
 #[cfg(test)]
 mod tests {

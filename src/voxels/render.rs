@@ -108,7 +108,8 @@ pub fn cast_all_contours<F: CastReal>(
     (collect(res), used)
 }
 
-fn collect<F: CastReal>(res: Vec<CastHit<F>>) -> VoxelHits<F> {
+/// Per-ray results in [`VoxelHits`] form.
+pub(crate) fn collect<F: CastReal>(res: Vec<CastHit<F>>) -> VoxelHits<F> {
     let mut out = VoxelHits::default();
     for h in res {
         out.hit.push(h.hit as u8);

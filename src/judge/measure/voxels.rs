@@ -7,7 +7,7 @@ use super::timed;
 use crate::budget::MemBudget;
 use crate::camera::Camera;
 use crate::error::Result;
-use crate::gpu::voxels::GpuOctree;
+use crate::gpu::GpuContext;
 use crate::rays::RayGen;
 use crate::real::Real;
 use crate::tensor::Outputs;
@@ -18,6 +18,7 @@ use crate::voxels::gpu::gpu_params;
 use crate::voxels::octree::Octree;
 use crate::voxels::render::{cast_all, cast_all_dag, referee_all, VoxelHits};
 use crate::voxels::shape::Shape;
+use crate::voxels::through::{CastPath, Through};
 
 fn per_cpu_s(n: f64, cpu: f64) -> f64 {
     if cpu > 0.0 {
@@ -121,15 +122,18 @@ pub fn octree_vs_dag<F: CastReal>(
     }
 }
 
-/// The CPU per-ray cast and the GPU cast of one octree in one run:
-/// coherent = `cam` over `gen` (the GPU generates its rays, the CPU casts
-/// `coh`, `f_ray::<f32>`'s), incoherent = `inc` (the same rays on both).
-/// GPU seconds are submit to readback after one warm-up batch of each entry
-/// (lavapipe compiles on first dispatch).
+/// Per structure (`octree`, `dag`, ...): the CPU per-ray cast, the CPU
+/// packet cast and the GPU cast of the same rays in one run, coherent (the
+/// camera `coh`; the GPU generates its own camera rays) and incoherent
+/// (`inc`). Metrics `{structure}_{per_ray|packet}_{set}_mrays_per_cpu_s`,
+/// `{structure}_{set}_packet_speedup` (per CPU-second, same run),
+/// `{structure}_gpu_{set}_mrays_per_s`, `{structure}_{set}_mean_iters`,
+/// `{structure}_{set}_node_bytes_per_ray` (4 x node words the kernel read;
+/// the CPU casts read the same words).
 #[allow(clippy::too_many_arguments)]
 pub fn cpu_vs_gpu(
-    tree: &Octree,
-    g: &GpuOctree,
+    structures: &[(&str, Through)],
+    gpu: &GpuContext,
     (cam, gen): (&Camera, &RayGen),
     coh: &Batch<f32>,
     inc: &Batch<f32>,
@@ -138,54 +142,40 @@ pub fn cpu_vs_gpu(
     out: &mut Outputs,
 ) -> Result<()> {
     let (p_coh, p_inc) = (params(coh), params(inc));
-    let packed: Vec<[f32; 6]> = inc
-        .o
-        .iter()
-        .zip(&inc.d)
+    let packed: Vec<[f32; 6]> = (inc.o.iter().zip(&inc.d))
         .map(|(o, d)| [o[0], o[1], o[2], d[0], d[1], d[2]])
         .collect();
-    g.cast_rays(&packed[..packed.len().min(64)], &gpu_params(&p_inc), budget)?;
-    let mut warm = gen.clone();
-    let side = gen.width;
-    warm.roi = Some(crate::rays::Roi {
-        x: 0,
-        y: 0,
-        width: 8.min(side),
-        height: 8.min(side),
-    });
-    g.cast_camera(cam, &warm, &gpu_params(&p_coh), false, budget)?;
-    for (name, b, p) in [("coherent", coh, p_coh), ("incoherent", inc, p_inc)] {
-        let (h, wall, cpu) = timed(|| cast_all::<f32>(tree, &b.o, &b.d, &p));
-        let n = b.o.len() as f64;
-        out.metric(
-            &format!("cpu_{name}_mrays_per_s"),
-            n / wall.max(1e-12) / 1e6,
-        );
-        out.metric(&format!("cpu_{name}_mrays_per_cpu_s"), per_cpu_s(n, cpu));
-        out.metric(
-            &format!("{name}_mean_iters"),
-            mean(h.iters.iter().map(|&x| x as f64)),
-        );
-        let gc = if name == "coherent" {
-            g.cast_camera(cam, gen, &gpu_params(&p), false, budget)?
-        } else {
-            g.cast_rays(&packed, &gpu_params(&p), budget)?
-        };
-        let m = gc.hits.len() as f64;
-        let rate = m / gc.gpu_s.max(1e-12) / 1e6;
-        out.metric(&format!("gpu_{name}_mrays_per_s"), rate);
-        out.metric(
-            &format!("gpu_{name}_mean_iters"),
-            mean(gc.hits.iter().map(|h| h.iters as f64)),
-        );
-        out.metric(
-            &format!("{name}_node_bytes_per_ray"),
-            4.0 * mean(gc.hits.iter().map(|h| h.loads() as f64)),
-        );
-        out.metric(
-            &format!("{name}_gpu_over_cpu"),
-            rate / (n / wall.max(1e-12) / 1e6).max(1e-12),
-        );
+    for (sname, through) in structures {
+        let g = through.upload(gpu)?;
+        // Warm-up: the first dispatch of each entry compiles it.
+        g.cast_rays(&packed[..packed.len().min(64)], &gpu_params(&p_inc), budget)?;
+        for (set, b, p) in [("coherent", coh, p_coh), ("incoherent", inc, p_inc)] {
+            let n = b.o.len() as f64;
+            let mut rate = [0.0; 2];
+            for (k, path) in [CastPath::PerRay, CastPath::Packet].into_iter().enumerate() {
+                let (h, _, cpu) = timed(|| through.cast_by(path, &b.o, &b.d, &p));
+                h?;
+                rate[k] = per_cpu_s(n, cpu);
+                let pname = ["per_ray", "packet"][k];
+                out.metric(&format!("{sname}_{pname}_{set}_mrays_per_cpu_s"), rate[k]);
+            }
+            out.metric(&format!("{sname}_{set}_packet_speedup"), rate[1] / rate[0].max(1e-12));
+            let gc = if set == "coherent" {
+                g.cast_camera(cam, gen, &gpu_params(&p), false, budget)?
+            } else {
+                g.cast_rays(&packed, &gpu_params(&p), budget)?
+            };
+            let m = gc.hits.len() as f64;
+            out.metric(&format!("{sname}_gpu_{set}_mrays_per_s"), m / gc.gpu_s.max(1e-12) / 1e6);
+            out.metric(
+                &format!("{sname}_{set}_mean_iters"),
+                mean(gc.hits.iter().map(|h| h.iters as f64)),
+            );
+            out.metric(
+                &format!("{sname}_{set}_node_bytes_per_ray"),
+                4.0 * mean(gc.hits.iter().map(|h| h.loads() as f64)),
+            );
+        }
     }
     Ok(())
 }

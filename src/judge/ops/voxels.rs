@@ -10,6 +10,9 @@
 //! uniform directions); `render --rays FILE` replays dumped rays (shape
 //! (N,)), and `--dump-failing` adds `rays` (N, 9). `seed` defaults to the
 //! run seed. Rays are made in the run's precision (`voxels::batch`).
+//! `voxels.render` casts through the scene's structure (`voxels::through`:
+//! octree, `structure: dag`, `contours: true`) on either backend; `cast`:
+//! `per_ray` (default) or `packet` (`voxels::packet`, identical outputs).
 //!
 //! `voxels.gpu_parity` outputs the GPU's `hit`, `t`, `leaf`, `normal`,
 //! `iters`, `leaf_key`, the CPU's as `cpu_*`, and `excused` (uint8,
@@ -21,7 +24,7 @@ use super::{BackendKind, OpCtx};
 use crate::budget::bytes_for;
 use crate::camera::Camera;
 use crate::error::{Error, Result};
-use crate::gpu::voxels::{GpuCast, GpuOctree};
+use crate::gpu::voxels::GpuCast;
 use crate::gpu::GpuContext;
 use crate::judge::measure::{timed, voxels as measure};
 use crate::rays::{RayGen, Rays};
@@ -32,17 +35,18 @@ use crate::voxels::batch::Batch;
 use crate::voxels::cast::{CastParams, CastReal};
 use crate::voxels::checks::contour_error;
 use crate::voxels::contour::fit_all;
-use crate::voxels::dag::build_dag;
+use crate::voxels::dag::{build_dag, Dag};
 use crate::voxels::gpu::{cast_batch, cast_camera, hits_from_gpu};
 use crate::voxels::octree::{build, Octree};
 use crate::voxels::outputs::{build_metrics, dag_metrics};
 use crate::voxels::referee_bounds::sphere_bounds;
 use crate::voxels::referee_dag::distinct_nodes_per_level;
-use crate::voxels::render::{cast_all, cast_all_contours, cast_all_dag, referee_all, Structure};
+use crate::voxels::render::{referee_all, Structure};
 use crate::voxels::shape::Shape;
+use crate::voxels::through::{CastPath, Through};
 
 ops! {
-    "voxels.render" CpuGpuF32 render ["rays", "count", "seed"]
+    "voxels.render" CpuGpuF32 render ["rays", "count", "seed", "cast"]
         "ESVO cast of a voxels scene: hit, t, leaf, normal, image, iters; build_s, bytes_per_voxel, mrays_per_s";
     "voxels.referee" Any referee_op ["rays", "count", "seed", "near_margin"]
         "exact f64 Amanatides-Woo DDA over the scene predicate: hit, t, leaf, normal, tie, near_tie, untied, clear";
@@ -59,7 +63,7 @@ ops! {
     "voxels.gpu_parity" GpuF32 gpu_parity ["rays", "count", "seed", "ulp_margin"]
         "GPU vs CPU f32 voxel cast on the same rays: both outputs, excused (referee ties / one-ulp near ties where they differ)";
     "voxels.gpu_bench" GpuF32 gpu_bench ["count", "size", "seed"]
-        "CPU per-ray vs GPU octree cast in one run, coherent (size^2 camera) and incoherent (count): Mrays/s, Mrays/CPU-s, mean iterations, node bytes per ray";
+        "CPU per-ray, CPU packet and GPU casts of octree and DAG in one run, coherent (size^2 camera) and incoherent (count): Mrays/CPU-s, GPU Mrays/s, packet speedup, mean iterations, node bytes per ray";
 }
 
 fn load(ctx: &OpCtx) -> Result<VoxelScene> {
@@ -102,54 +106,50 @@ fn batch<F: Real>(ctx: &OpCtx, sc: &VoxelScene) -> Result<Batch<F>> {
     }
 }
 
-fn render_in<F: CastReal>(ctx: &OpCtx, sc: &VoxelScene, tree: &Octree) -> Result<Outputs> {
-    let dag = match sc.structure {
-        Structure::Octree => None,
-        Structure::Dag => Some(build_dag(tree, &ctx.budget)?),
-    };
-    let contours = sc.contours.then(|| fit_all(&sc.shape, tree)).transpose()?;
+fn render_in<F: CastReal>(ctx: &OpCtx, sc: &VoxelScene, th: Through) -> Result<Outputs> {
     let b = batch::<F>(ctx, sc)?;
     let bytes = bytes_for(b.o.len() as u64, 12 * std::mem::size_of::<F>() as u64 + 32);
     ctx.budget.check("voxels.render outputs", bytes)?;
     let p = b.params(sc.lod, sc.max_iter);
-    let (h, secs, _) = timed(|| match (&dag, &contours) {
-        (Some(g), _) => cast_all_dag::<F>(g, &b.o, &b.d, &p),
-        (None, Some(cs)) => cast_all_contours::<F>(tree, cs, &b.o, &b.d, &p).0,
-        (None, None) => cast_all::<F>(tree, &b.o, &b.d, &p),
-    });
+    let path: CastPath = ctx.param_or("cast", CastPath::PerRay)?;
+    let (h, secs, _) = timed(|| th.cast_by::<F>(path, &b.o, &b.d, &p));
+    let h = h?;
     let mut out = Outputs::default();
-    if let Some(g) = &dag {
-        dag_metrics(&mut out, g);
-    }
     let hits = h.hit.iter().map(|&x| x as u64).sum();
     b.cast_outputs(h, (secs, hits), sc.depth, ctx.dump, &mut out)?;
-    build_metrics(&mut out, tree);
     Ok(out)
+}
+
+/// The scene's DAG and contours, when it asks for them.
+fn parts(ctx: &OpCtx, sc: &VoxelScene, tree: &Octree) -> Result<(Option<Dag>, Option<Vec<u32>>)> {
+    let dag = match sc.structure {
+        Structure::Octree => None,
+        Structure::Dag => Some(build_dag(tree, &ctx.budget)?),
+    };
+    Ok((dag, sc.contours.then(|| fit_all(&sc.shape, tree)).transpose()?))
 }
 
 fn render(ctx: &OpCtx) -> Result<Outputs> {
     let sc = load(ctx)?;
     let tree = build(&sc.shape, sc.depth, &ctx.budget)?;
-    if ctx.backend == BackendKind::Cpu {
-        return by_precision!(ctx, render_in(ctx, &sc, &tree));
+    let (dag, cs) = parts(ctx, &sc, &tree)?;
+    let th = Through::pick(&tree, dag.as_ref(), cs.as_deref());
+    let mut out = if ctx.backend == BackendKind::Cpu {
+        by_precision!(ctx, render_in(ctx, &sc, th))?
+    } else {
+        let (r, wall, _) = timed(|| gpu_run(ctx, &sc, th, ctx.dump));
+        let (cast, b, _) = r?;
+        let mut out = Outputs::default();
+        out.metric("wall_s", wall)
+            .counter("kernel_max_iter", cast.max_iter as u64);
+        let hits = cast.hits.iter().filter(|h| h.hit()).count() as u64;
+        let h = hits_from_gpu(&cast.hits);
+        b.cast_outputs(h, (cast.gpu_s, hits), sc.depth, ctx.dump, &mut out)?;
+        out
+    };
+    if let Some(g) = &dag {
+        dag_metrics(&mut out, g);
     }
-    if sc.structure != Structure::Octree || sc.contours {
-        let why = "the GPU cast reads the octree without contours (structure: dag and contours run on the CPU)";
-        return Err(Error::NotSupported(format!("{}: {why}", ctx.case_id)));
-    }
-    let (r, wall, _) = timed(|| gpu_run(ctx, &sc, &tree, ctx.dump));
-    let (cast, b, _) = r?;
-    let mut out = Outputs::default();
-    out.metric("wall_s", wall)
-        .counter("kernel_max_iter", cast.max_iter as u64);
-    let hits = cast.hits.iter().filter(|h| h.hit()).count() as u64;
-    b.cast_outputs(
-        hits_from_gpu(&cast.hits),
-        (cast.gpu_s, hits),
-        sc.depth,
-        ctx.dump,
-        &mut out,
-    )?;
     build_metrics(&mut out, &tree);
     Ok(out)
 }
@@ -319,10 +319,10 @@ fn contour_op(ctx: &OpCtx) -> Result<Outputs> {
 fn gpu_run(
     ctx: &OpCtx,
     sc: &VoxelScene,
-    tree: &Octree,
+    th: Through,
     keep: bool,
 ) -> Result<(GpuCast, Batch<f32>, CastParams)> {
-    let g = GpuOctree::new(GpuContext::get()?, &tree.nodes, tree.depth)?;
+    let g = th.upload(GpuContext::get()?)?;
     if ctx.rays.is_none() && ctx.param_or("rays", "camera".to_string())? == "camera" {
         let (cam, gen) = view(sc, None)?;
         let p = CastParams {
@@ -346,9 +346,11 @@ fn gpu_parity(ctx: &OpCtx) -> Result<Outputs> {
         return Err(ctx.bad("ulp_margin", "must be finite and >= 0"));
     }
     let tree = build(&sc.shape, sc.depth, &ctx.budget)?;
-    let (cast, b, p) = gpu_run(ctx, &sc, &tree, true)?;
+    let (dag, cs) = parts(ctx, &sc, &tree)?;
+    let th = Through::pick(&tree, dag.as_ref(), cs.as_deref());
+    let (cast, b, p) = gpu_run(ctx, &sc, th, true)?;
     let scene = (&sc.shape, sc.depth);
-    crate::voxels::checks::gpu_parity(&tree, &cast, &b, &p, scene, margin, ctx.case_id, ctx.dump)
+    crate::voxels::checks::gpu_parity(th, &cast, &b, &p, scene, margin, ctx.case_id, ctx.dump)
 }
 
 fn gpu_bench(ctx: &OpCtx) -> Result<Outputs> {
@@ -360,19 +362,17 @@ fn gpu_bench(ctx: &OpCtx) -> Result<Outputs> {
     ctx.budget
         .check("voxels.gpu_bench rays and results", bytes)?;
     let tree = build(&sc.shape, sc.depth, &ctx.budget)?;
-    let gpu = GpuContext::get()?;
-    let t0 = std::time::Instant::now();
-    let g = GpuOctree::new(gpu, &tree.nodes, tree.depth)?;
+    let dag = build_dag(&tree, &ctx.budget)?;
     let mut out = Outputs::default();
-    out.metric("threads", rayon::current_num_threads() as f64)
-        .metric("gpu_upload_s", t0.elapsed().as_secs_f64());
+    out.metric("threads", rayon::current_num_threads() as f64);
     build_metrics(&mut out, &tree);
+    dag_metrics(&mut out, &dag);
     let (cam, gen) = view(&sc, Some(size))?;
     let coh = Batch::<f32>::camera(&cam, &gen, &ctx.budget)?;
     let inc = Batch::<f32>::incoherent(count, seed);
     measure::cpu_vs_gpu(
-        &tree,
-        &g,
+        &[("octree", Through::Octree(&tree)), ("dag", Through::Dag(&dag))],
+        GpuContext::get()?,
         (&cam, &gen),
         &coh,
         &inc,

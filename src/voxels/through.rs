@@ -1,0 +1,103 @@
+//! What a scene's rays are cast through ([`Through`]: the octree, the DAG,
+//! or the octree with contours) and by which CPU path ([`CastPath`]: per
+//! ray, the referee, or by packets), on the CPU or uploaded to the GPU.
+
+use serde::Deserialize;
+
+use crate::error::{Error, Result};
+use crate::gpu::voxels::{GpuAddressing, GpuContours, GpuOctree};
+use crate::gpu::GpuContext;
+
+use super::cast::{CastParams, CastReal};
+use super::dag::Dag;
+use super::gpu::contour_lut;
+use super::octree::Octree;
+use super::packet::{cast_all_packet, cast_all_packet_dag};
+use super::render::{cast_all, cast_all_contours, cast_all_dag, VoxelHits};
+
+/// The CPU cast path (`voxels.render` param `cast`).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum CastPath {
+    /// One ray at a time ([`super::cast`]): the referee of the packets.
+    #[default]
+    PerRay,
+    /// [`super::packet`]: lanes in lockstep, identical results.
+    Packet,
+}
+
+/// What a scene's rays are cast through, on either backend.
+#[derive(Clone, Copy, Debug)]
+pub enum Through<'a> {
+    /// The ESVO octree ([`super::cast::cast`]).
+    Octree(&'a Octree),
+    /// The DAG ([`super::cast::cast_dag`]).
+    Dag(&'a Dag),
+    /// The octree with contours per attribute index ([`super::cast::cast_contours`]).
+    Contours(&'a Octree, &'a [u32]),
+}
+
+impl<'a> Through<'a> {
+    /// What a scene with these parts is cast through: the DAG when there is
+    /// one (it has no contours), else the octree with or without contours.
+    pub fn pick(tree: &'a Octree, dag: Option<&'a Dag>, contours: Option<&'a [u32]>) -> Self {
+        match (dag, contours) {
+            (Some(g), _) => Through::Dag(g),
+            (None, Some(cs)) => Through::Contours(tree, cs),
+            (None, None) => Through::Octree(tree),
+        }
+    }
+
+    /// The CPU cast of every ray (the GPU kernel's twin for `F = f32`).
+    pub fn cast_all<F: CastReal>(
+        &self,
+        o: &[[F; 3]],
+        d: &[[F; 3]],
+        p: &CastParams,
+    ) -> VoxelHits<F> {
+        match *self {
+            Through::Octree(t) => cast_all(t, o, d, p),
+            Through::Dag(g) => cast_all_dag(g, o, d, p),
+            Through::Contours(t, cs) => cast_all_contours(t, cs, o, d, p).0,
+        }
+    }
+
+    /// [`Through::cast_all`] by `path` (the packet path has no contours).
+    pub fn cast_by<F: CastReal>(
+        &self,
+        path: CastPath,
+        o: &[[F; 3]],
+        d: &[[F; 3]],
+        p: &CastParams,
+    ) -> Result<VoxelHits<F>> {
+        match (path, *self) {
+            (CastPath::PerRay, _) => Ok(self.cast_all(o, d, p)),
+            (CastPath::Packet, Through::Octree(t)) => Ok(cast_all_packet(t, o, d, p)),
+            (CastPath::Packet, Through::Dag(g)) => Ok(cast_all_packet_dag(g, o, d, p)),
+            (CastPath::Packet, Through::Contours(..)) => Err(Error::NotSupported(
+                "the packet cast has no contours: use cast: per_ray".into(),
+            )),
+        }
+    }
+
+    /// Uploads the structure (and the contour table) to the GPU, with the
+    /// kernel specialised for its addressing.
+    pub fn upload<'c>(&self, ctx: &'c GpuContext) -> Result<GpuOctree<'c>> {
+        match *self {
+            Through::Octree(t) => {
+                GpuOctree::with(ctx, &t.nodes, t.depth, GpuAddressing::Relative, None)
+            }
+            Through::Dag(g) => {
+                GpuOctree::with(ctx, &g.nodes, g.depth, GpuAddressing::Absolute, None)
+            }
+            Through::Contours(t, cs) => {
+                let lut = contour_lut();
+                let c = GpuContours {
+                    codes: cs,
+                    lut: &lut,
+                };
+                GpuOctree::with(ctx, &t.nodes, t.depth, GpuAddressing::Relative, Some(c))
+            }
+        }
+    }
+}
