@@ -19,9 +19,7 @@ use std::time::Instant;
 use crate::budget::MemBudget;
 use crate::camera::Camera;
 use crate::error::Result;
-use crate::judge::plot::{self, Chart, Series};
 use crate::rays::RayGen;
-use crate::tensor::{Outputs, Tensor};
 
 use super::compose::Compose;
 use super::diff::{f_diff, DiffOptions, Reduce, Upstream};
@@ -99,46 +97,6 @@ pub struct FitReport {
     /// Per held-out view.
     pub psnr_held: Vec<f64>,
     pub time_s: f64,
-}
-
-impl FitReport {
-    /// The judge's tensors: `loss` (per iteration), `loss_rgb` (the loss
-    /// curve, log y), `loss_drop` (first / last), `psnr_held` (per held-out
-    /// view), `psnr_held_min`; metrics `psnr_train`, `psnr_held_mean`,
-    /// `psnr_held_min`, `time_s`.
-    pub fn to_outputs(&self, title: &str) -> Result<Outputs> {
-        let n = self.loss.len();
-        let mean = self.psnr_held.iter().sum::<f64>() / self.psnr_held.len() as f64;
-        let min = self.psnr_held.iter().copied().fold(f64::INFINITY, f64::min);
-        let last = self.loss.last().copied().unwrap_or(f64::NAN);
-        let chart = Chart {
-            title: format!("{title}: training loss"),
-            x_label: "iteration".into(),
-            y_label: "mean squared error over training views".into(),
-            log_x: false,
-            log_y: true,
-            series: vec![Series::new(
-                "loss",
-                (0..n).map(|i| i as f64).collect(),
-                self.loss.clone(),
-            )],
-        };
-        let mut out = Outputs::default();
-        out.tensor("loss", Tensor::real(&[n], self.loss.clone())?);
-        out.tensor("loss_rgb", plot::render(&chart)?);
-        out.tensor(
-            "loss_drop",
-            Tensor::scalar(self.loss.first().map_or(f64::NAN, |f| f / last)),
-        );
-        let nh = self.psnr_held.len();
-        out.tensor("psnr_held", Tensor::real(&[nh], self.psnr_held.clone())?);
-        out.tensor("psnr_held_min", Tensor::scalar(min));
-        out.metric("psnr_train", self.psnr_train);
-        out.metric("psnr_held_mean", mean);
-        out.metric("psnr_held_min", min);
-        out.metric("time_s", self.time_s);
-        Ok(out)
-    }
 }
 
 /// Target density and colour at `x` (module doc).

@@ -211,21 +211,6 @@ pub fn grid_probe(pts: &[[f64; 3]], g: &GridDesc) -> (Vec<f64>, Vec<u8>) {
     (v, inside)
 }
 
-/// Whether each point lies more than one index cell outside the grid on
-/// some axis (index coordinate `u < -1` or `u >= n`): all eight corners
-/// are outside, so the `zero` policy's value there is exactly 0.
-pub fn beyond_one_cell(pts: &[[f64; 3]], g: &GridDesc) -> Vec<u8> {
-    pts.iter()
-        .map(|x| {
-            (0..3).any(|a| {
-                let n = g.shape[2 - a] as f64;
-                let u = (x[a] - g.bmin[a]) * (n - 1.0) / (g.bmax[a] - g.bmin[a]);
-                u < -1.0 || u >= n
-            }) as u8
-        })
-        .collect()
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
