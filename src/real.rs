@@ -48,6 +48,9 @@ pub trait Real:
     fn f64(self) -> f64;
     /// Wraps an array of this type as a [`Tensor`].
     fn tensor(a: ArrayD<Self>) -> Tensor;
+    /// The slice as `f32` when `Self` is `f32` (the hot loops' SIMD paths
+    /// are written for f32 lanes; f64 keeps the scalar path).
+    fn as_f32_slice(s: &[Self]) -> Option<&[f32]>;
 }
 
 impl Real for f32 {
@@ -63,6 +66,10 @@ impl Real for f32 {
     fn tensor(a: ArrayD<Self>) -> Tensor {
         Tensor::F32(a)
     }
+    #[inline(always)]
+    fn as_f32_slice(s: &[f32]) -> Option<&[f32]> {
+        Some(s)
+    }
 }
 
 impl Real for f64 {
@@ -77,5 +84,9 @@ impl Real for f64 {
     }
     fn tensor(a: ArrayD<Self>) -> Tensor {
         Tensor::F64(a)
+    }
+    #[inline(always)]
+    fn as_f32_slice(_: &[f64]) -> Option<&[f32]> {
+        None
     }
 }

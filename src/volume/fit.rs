@@ -19,6 +19,7 @@ use std::time::Instant;
 use crate::budget::MemBudget;
 use crate::camera::Camera;
 use crate::error::{Error, Result};
+use crate::judge::plot::{self, Chart, Series};
 use crate::rays::RayGen;
 use crate::tensor::{Outputs, Tensor};
 
@@ -124,14 +125,29 @@ impl FitConfig {
 }
 
 impl FitReport {
-    /// `loss` (per iteration), `psnr_held` (per held-out view), `loss_drop`
-    /// (first / last), `psnr_held_min`; metrics `psnr_train`,
-    /// `psnr_held_mean`, `psnr_held_min`, `time_s`.
-    pub fn to_outputs(&self) -> Result<Outputs> {
+    /// `loss` (per iteration), `loss_rgb` (the loss curve, log y, titled
+    /// `title`), `psnr_held` (per held-out view), `loss_drop` (first /
+    /// last), `psnr_held_min`; metrics `psnr_train`, `psnr_held_mean`,
+    /// `psnr_held_min`, `time_s`.
+    pub fn to_outputs(&self, title: &str) -> Result<Outputs> {
+        let n = self.loss.len();
         let mean = self.psnr_held.iter().sum::<f64>() / self.psnr_held.len() as f64;
         let min = self.psnr_held.iter().copied().fold(f64::INFINITY, f64::min);
+        let chart = Chart {
+            title: format!("{title}: training loss"),
+            x_label: "iteration".into(),
+            y_label: "mean squared error over training views".into(),
+            log_x: false,
+            log_y: true,
+            series: vec![Series::new(
+                "loss",
+                (0..n).map(|i| i as f64).collect(),
+                self.loss.clone(),
+            )],
+        };
         let mut out = Outputs::default();
-        out.tensor("loss", Tensor::real(&[self.loss.len()], self.loss.clone())?);
+        out.tensor("loss", Tensor::real(&[n], self.loss.clone())?);
+        out.tensor("loss_rgb", plot::render(&chart)?);
         out.tensor(
             "psnr_held",
             Tensor::real(&[self.psnr_held.len()], self.psnr_held.clone())?,

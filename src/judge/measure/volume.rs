@@ -85,8 +85,9 @@ pub fn forward<F: Real>(
 /// Speed against error over `dts` (early stop off, no step cap), f32 and
 /// f64: per dt the median seconds of a fused frame and the max |trans -
 /// exp(-tau)| against the closed-form optical depths `tau`. Tensors `dt`,
-/// `time_f32`, `err_f32`, `time_f64`, `err_f64` and `plot_rgb` (log-log);
-/// metrics `<column>_dt<dt>`.
+/// `time_f32`, `err_f32`, `time_f64`, `err_f64`, `plot_rgb` (log-log) and,
+/// over two or more dts, `err_ratio_f32` / `err_ratio_f64` (each error over
+/// the next: 4 per halving at second order); metrics `<column>_dt<dt>`.
 pub fn dt_sweep(
     (cam, gen, p): (&Camera, &RayGen, &VolumeParams),
     tau: &[f64],
@@ -130,9 +131,19 @@ pub fn dt_sweep(
         for (dt, v) in dts.iter().zip(&c) {
             out.metric(&format!("{name}_dt{dt}"), *v);
         }
+        if let (Some(prec), true) = (name.strip_prefix("err_"), dts.len() >= 2) {
+            let r = successive_ratios(&c);
+            out.tensor(&format!("err_ratio_{prec}"), Tensor::real(&[r.len()], r)?);
+        }
         out.tensor(name, Tensor::real(&[dts.len()], c)?);
     }
     Ok(out)
+}
+
+/// `v[i] / v[i + 1]`: over a dt sweep's errors, how much the error falls
+/// from one dt to the next (4 per halving for a second-order rule).
+fn successive_ratios(v: &[f64]) -> Vec<f64> {
+    v.windows(2).map(|w| w[0] / w[1]).collect()
 }
 
 /// One point of the dt sweep: the median seconds of a fused frame and the
@@ -221,4 +232,15 @@ pub fn backward<F: Real>(
     out.metric("threads", rayon::current_num_threads() as f64);
     out.counter("samples", samples);
     Ok(out)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn successive_ratios_divide_each_error_by_the_next() {
+        assert_eq!(successive_ratios(&[16.0, 4.0, 2.0]), vec![4.0, 2.0]);
+        assert!(successive_ratios(&[1.0]).is_empty());
+    }
 }

@@ -17,7 +17,7 @@ use crate::tensor::{Outputs, Tensor};
 use crate::volume::compose::Compose;
 use crate::volume::field::{FieldDesc, Grid};
 use crate::volume::referee::closed_form::{closed_image, optical_depths};
-use crate::volume::referee::quadrature::{grid_probe, quadrature};
+use crate::volume::referee::quadrature::{beyond_one_cell, grid_probe, quadrature};
 use crate::volume::{prepare, render, render_rays, Chain, VolumeParams};
 
 ops! {
@@ -214,6 +214,8 @@ fn op_grid_probe_reference(ctx: &OpCtx) -> Result<Outputs> {
     let mut out = Outputs::default();
     out.tensor("value", Tensor::real(&[pts.len()], v)?);
     out.tensor("inside", Tensor::from_shape_vec(&[pts.len()], inside)?);
+    let beyond = beyond_one_cell(&pts, &g);
+    out.tensor("beyond", Tensor::from_shape_vec(&[pts.len()], beyond)?);
     Ok(out)
 }
 

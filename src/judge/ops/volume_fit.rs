@@ -46,5 +46,5 @@ fn op_fit(ctx: &OpCtx) -> Result<Outputs> {
     for (i, l) in r.loss.iter().enumerate() {
         eprintln!("{}: iter {i} loss {l:.6e}", ctx.case_id);
     }
-    r.to_outputs()
+    r.to_outputs(ctx.case_id)
 }

@@ -188,11 +188,12 @@ pub fn backward_ray<F: Real>(
     let mut s = tn * (g[0] * bg[0] + g[1] * bg[1] + g[2] * bg[2]);
     let mut sc = F::zero();
     let got = go * tn;
-    let mut lt_next = log_tn;
+    // T_{k+1} of sample k is T_k of sample k + 1: one exp per sample.
+    let mut t_next = tn;
     for i in (0..recs.len()).rev() {
         let r = &recs[i];
-        let t_next = lt_next.exp();
-        let w = r.log_t.exp() * r.alpha;
+        let t_k = r.log_t.exp();
+        let w = t_k * r.alpha;
         let e = g[0] * r.c[0] + g[1] * r.c[1] + g[2] * r.c[2] + gd * r.t;
         let dtau = t_next * e - s + got;
         each(
@@ -205,7 +206,7 @@ pub fn backward_ray<F: Real>(
             },
         );
         super::integrate::kahan_add(&mut s, &mut sc, w * e);
-        lt_next = r.log_t;
+        t_next = t_k;
     }
 }
 
@@ -310,6 +311,14 @@ pub fn f_diff<F: Real>(
         }
     }
     let medium = Medium::<F>::new(&params.field, &params.color);
+    let shared_cell = match (&field, &color) {
+        (Field::Grid(a), ColorField::Grid(b)) => {
+            (a.nx, a.ny, a.nz, a.oob) == (b.nx, b.ny, b.nz, b.oob)
+                && a.bmin == b.bmin
+                && a.scale == b.scale
+        }
+        _ => false,
+    };
     let cx = Ctx {
         medium: &medium,
         field: &field,
@@ -319,13 +328,10 @@ pub fn f_diff<F: Real>(
         rays,
         up,
         pose: Pose::of(cam),
-        shared_cell: match (&field, &color) {
-            (Field::Grid(a), ColorField::Grid(b)) => {
-                (a.nx, a.ny, a.nz, a.oob) == (b.nx, b.ny, b.nz, b.oob)
-                    && a.bmin == b.bmin
-                    && a.scale == b.scale
-            }
-            _ => false,
+        shared_cell,
+        packed: match &medium {
+            Medium::Packed(p) if shared_cell => Some(p),
+            _ => None,
         },
         bmin: gen.aabb.min.map(F::of),
         bmax: gen.aabb.max.map(F::of),

@@ -12,7 +12,7 @@ use super::super::field::{ColorField, Field};
 use super::super::integrate::Integrated;
 use super::super::sample::{walk_lattice, Samples};
 use super::field_grad::{param_count, param_index};
-use super::reduce::{push_rec, reduce_sorted, scatter_dense, sum_chunks, GridRec, Unit, UNIT_RAYS};
+use super::reduce::{push_rec, reduce_sorted, scatter_dense, sum_chunks, Unit, UNIT_RAYS};
 use super::walk::{ray_grads, replay_fused, replay_unfused, Ctx};
 use super::{DiffOptions, Grads, Ksum, Reduce};
 
@@ -48,6 +48,8 @@ pub(super) fn backward<F: Real>(
         ColorField::Grid(g) => Some(g),
         _ => None,
     };
+    // Density and colour on one geometry: one packed 4-channel scatter.
+    let packed = cx.packed;
     let nparam = param_count(cx.field);
     let const_color = matches!(cx.color, ColorField::Constant(_));
     let per_sample = opt.per_sample && buffers.is_some();
@@ -72,7 +74,11 @@ pub(super) fn backward<F: Real>(
     };
     let units: Vec<(usize, usize)> = match reduce {
         Reduce::Sorted => {
-            bps += sig_grid.map_or(0, |_| 4 + 4 * fsz) + col_grid.map_or(0, |_| 4 + 6 * fsz);
+            // Each record is held twice: in its unit and in the sorted array.
+            bps += 2 * match packed {
+                Some(_) => 4 + 7 * fsz,
+                None => sig_grid.map_or(0, |_| 4 + 4 * fsz) + col_grid.map_or(0, |_| 4 + 6 * fsz),
+            };
             (0..n)
                 .step_by(UNIT_RAYS)
                 .map(|a| (a, (a + UNIT_RAYS).min(n)))
@@ -117,12 +123,17 @@ pub(super) fn backward<F: Real>(
             color_const: [Ksum::default(); 3],
             sig_recs: vec![],
             col_recs: vec![],
-            sig_dense: match (sorted, sig_grid) {
-                (false, Some(g)) => vec![F::zero(); g.data.len()],
+            pk_recs: vec![],
+            sig_dense: match (sorted, packed, sig_grid) {
+                (false, None, Some(g)) => vec![F::zero(); g.data.len()],
                 _ => vec![],
             },
-            col_dense: match (sorted, col_grid) {
-                (false, Some(g)) => vec![F::zero(); g.data.len()],
+            col_dense: match (sorted, packed, col_grid) {
+                (false, None, Some(g)) => vec![F::zero(); g.data.len()],
+                _ => vec![],
+            },
+            pk_dense: match (sorted, packed) {
+                (false, Some(p)) => vec![F::zero(); p.data.len()],
                 _ => vec![],
             },
             hash_dense: vec![F::zero(); hash.map_or(0, |h| h.param_count())],
@@ -143,7 +154,7 @@ pub(super) fn backward<F: Real>(
             }
             // Records go out back to front; the sorted path wants (ray,
             // sample) order, so a ray's records are reversed after its walk.
-            let (s0, c0) = (u.sig_recs.len(), u.col_recs.len());
+            let (s0, c0, p0) = (u.sig_recs.len(), u.col_recs.len(), u.pk_recs.len());
             let sink = hash.is_some().then_some(&mut u.hash_dense[..]);
             let cam = ray_grads(cx, r, &recs, log_tn, sink, |i, e| {
                 if let Some(p) = param_index(cx.field, e.x) {
@@ -154,14 +165,21 @@ pub(super) fn backward<F: Real>(
                         u.color_const[ch].add(e.dcolor[ch]);
                     }
                 }
-                if let Some(g) = sig_grid {
+                if let Some(p) = packed {
+                    let v = [e.dsigma, e.dcolor[0], e.dcolor[1], e.dcolor[2]];
+                    if sorted {
+                        push_rec(p, e.cs, v, &mut u.pk_recs);
+                    } else {
+                        scatter_dense(p, e.cs, v, &mut u.pk_dense);
+                    }
+                } else if let Some(g) = sig_grid {
                     if sorted {
                         push_rec(g, e.cs, [e.dsigma], &mut u.sig_recs);
                     } else {
                         scatter_dense(g, e.cs, [e.dsigma], &mut u.sig_dense);
                     }
                 }
-                if let Some(g) = col_grid {
+                if let (None, Some(g)) = (packed, col_grid) {
                     if sorted {
                         push_rec(g, e.cc, e.dcolor, &mut u.col_recs);
                     } else {
@@ -174,6 +192,7 @@ pub(super) fn backward<F: Real>(
             });
             u.sig_recs[s0..].reverse();
             u.col_recs[c0..].reverse();
+            u.pk_recs[p0..].reverse();
             if per_sample {
                 u.per_sample.extend_from_slice(&ps);
                 // Samples after an early stop keep zero gradients.
@@ -210,32 +229,43 @@ pub(super) fn backward<F: Real>(
         samples += u.samples;
     }
     let mut out_units = out_units;
-    let (dsigma, dcolor) = if sorted {
-        let sig = sig_grid.map(|g| {
-            let recs: Vec<GridRec<F, 1>> = out_units
-                .iter_mut()
-                .flat_map(|u| std::mem::take(&mut u.sig_recs))
-                .collect();
-            reduce_sorted(g, recs)
-        });
-        let col = col_grid.map(|g| {
-            let recs: Vec<GridRec<F, 3>> = out_units
-                .iter_mut()
-                .flat_map(|u| std::mem::take(&mut u.col_recs))
-                .collect();
-            reduce_sorted(g, recs)
-        });
-        (sig, col)
-    } else {
-        let sig = sig_grid.map(|g| {
-            let parts: Vec<&[F]> = out_units.iter().map(|u| &u.sig_dense[..]).collect();
-            sum_chunks(&parts, g.data.len())
-        });
-        let col = col_grid.map(|g| {
-            let parts: Vec<&[F]> = out_units.iter().map(|u| &u.col_dense[..]).collect();
-            sum_chunks(&parts, g.data.len())
-        });
-        (sig, col)
+    let (dsigma, dcolor) = match (packed, sorted) {
+        (Some(p), _) => {
+            let pk = if sorted {
+                let parts = out_units.iter_mut().map(|u| std::mem::take(&mut u.pk_recs));
+                reduce_sorted(p, parts.collect())
+            } else {
+                let parts: Vec<&[F]> = out_units.iter().map(|u| &u.pk_dense[..]).collect();
+                sum_chunks(&parts, p.data.len())
+            };
+            let sig = pk.chunks(4).map(|v| v[0]).collect();
+            let col = pk.chunks(4).flat_map(|v| [v[1], v[2], v[3]]).collect();
+            (Some(sig), Some(col))
+        }
+        (None, true) => (
+            sig_grid.map(|g| {
+                let parts = out_units
+                    .iter_mut()
+                    .map(|u| std::mem::take(&mut u.sig_recs));
+                reduce_sorted(g, parts.collect())
+            }),
+            col_grid.map(|g| {
+                let parts = out_units
+                    .iter_mut()
+                    .map(|u| std::mem::take(&mut u.col_recs));
+                reduce_sorted(g, parts.collect())
+            }),
+        ),
+        (None, false) => (
+            sig_grid.map(|g| {
+                let parts: Vec<&[F]> = out_units.iter().map(|u| &u.sig_dense[..]).collect();
+                sum_chunks(&parts, g.data.len())
+            }),
+            col_grid.map(|g| {
+                let parts: Vec<&[F]> = out_units.iter().map(|u| &u.col_dense[..]).collect();
+                sum_chunks(&parts, g.data.len())
+            }),
+        ),
     };
     let dhash = hash.map(|h| {
         let parts: Vec<&[F]> = out_units.iter().map(|u| &u.hash_dense[..]).collect();

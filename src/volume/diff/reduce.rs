@@ -4,7 +4,7 @@
 use crate::real::Real;
 
 use super::super::field::Grid;
-use super::field_grad::{corner_node, corner_weight, Cell};
+use super::field_grad::{cell_inside, corner_node, corner_offsets, corner_weight, Cell};
 use super::Ksum;
 
 // Reductions.
@@ -48,29 +48,41 @@ pub(super) fn scatter_dense<F: Real, const C: usize>(
     v: [F; C],
     out: &mut [F],
 ) {
-    if let Some(c) = cell {
-        for d in 0..8 {
-            if let Some(node) = corner_node(g, c.base, d) {
-                let w = corner_weight(c.f, d);
-                for ch in 0..C {
-                    out[node * C + ch] += w * v[ch];
-                }
+    let Some(c) = cell else {
+        return;
+    };
+    if cell_inside(g, c.base) {
+        let b = (c.base[2] as usize * g.ny + c.base[1] as usize) * g.nx + c.base[0] as usize;
+        for (d, o) in corner_offsets(g).into_iter().enumerate() {
+            let w = corner_weight(c.f, d);
+            let slot = &mut out[(b + o) * C..(b + o + 1) * C];
+            for ch in 0..C {
+                slot[ch] += w * v[ch];
+            }
+        }
+        return;
+    }
+    for d in 0..8 {
+        if let Some(node) = corner_node(g, c.base, d) {
+            let w = corner_weight(c.f, d);
+            for ch in 0..C {
+                out[node * C + ch] += w * v[ch];
             }
         }
     }
 }
 
-/// Canonical reduction: stable sort by cell, then each node sums its eight
-/// neighbouring cells (corner order 0..8, records in stable order).
+/// Canonical reduction: the records (units in order, each in (ray, sample)
+/// order) placed by a stable counting sort on their cell, then each node
+/// sums its eight neighbouring cells (corner order 0..8, records in sorted
+/// order). The order depends on the rays only, never on threads.
 pub(super) fn reduce_sorted<F: Real, const C: usize>(
     g: &Grid<F>,
-    mut recs: Vec<GridRec<F, C>>,
+    parts: Vec<Vec<GridRec<F, C>>>,
 ) -> Vec<F> {
-    use rayon::prelude::*;
     let ncell = (g.nx + 1) * (g.ny + 1) * (g.nz + 1);
-    recs.par_sort_by_key(|r| r.key);
     let mut start = vec![0u32; ncell + 1];
-    for r in &recs {
+    for r in parts.iter().flatten() {
         start[r.key as usize + 1] += 1;
     }
     for i in 0..ncell {
@@ -78,6 +90,17 @@ pub(super) fn reduce_sorted<F: Real, const C: usize>(
     }
     let nodes = g.nx * g.ny * g.nz;
     let mut out = vec![F::zero(); nodes * C];
+    let Some(first) = parts.iter().flatten().next().copied() else {
+        return out;
+    };
+    let mut recs = vec![first; start[ncell] as usize];
+    let mut pos = start.clone();
+    for r in parts.iter().flatten() {
+        let p = &mut pos[r.key as usize];
+        recs[*p as usize] = *r;
+        *p += 1;
+    }
+    drop(parts);
     crate::parallel::par_chunks("f_diff_gather", &mut out, 4096 * C, |ci, chunk| {
         let first = ci * 4096;
         for (q, slot) in chunk.chunks_mut(C).enumerate() {
@@ -129,8 +152,11 @@ pub(super) struct Unit<F> {
     pub(super) color_const: [Ksum<F>; 3],
     pub(super) sig_recs: Vec<GridRec<F, 1>>,
     pub(super) col_recs: Vec<GridRec<F, 3>>,
+    /// Packed `[sigma, r, g, b]` records / dense grid (shared geometry).
+    pub(super) pk_recs: Vec<GridRec<F, 4>>,
     pub(super) sig_dense: Vec<F>,
     pub(super) col_dense: Vec<F>,
+    pub(super) pk_dense: Vec<F>,
     /// dL/dparams of a hash field (flat order), dense per unit.
     pub(super) hash_dense: Vec<F>,
     pub(super) per_sample: Vec<(F, [F; 3])>,

@@ -5,7 +5,7 @@ use crate::rays::Rays;
 use crate::real::Real;
 use crate::rng::rand_f64;
 
-use super::super::field::{ColorField, Field, Medium};
+use super::super::field::{ColorField, Field, Grid, Medium};
 use super::super::integrate::{Integrated, RayAcc};
 use super::super::occupancy::Occupancy;
 use super::super::sample::{walk_lattice, March, Samples, Sampling, TransPath};
@@ -28,6 +28,9 @@ pub(super) struct Ctx<'a, F> {
     pub(super) pose: Pose<F>,
     /// Density and colour grids share shape, box and OOB policy.
     pub(super) shared_cell: bool,
+    /// With `shared_cell`: the forward's packed `[sigma, r, g, b]` grid, for
+    /// the one-pass gradient and the packed 4-channel scatter.
+    pub(super) packed: Option<&'a Grid<F>>,
     pub(super) bmin: [F; 3],
     pub(super) bmax: [F; 3],
     pub(super) near: F,
@@ -162,6 +165,16 @@ pub(super) fn ray_grads<F: Real>(
                     ([F::zero(); 3], h.backward(x, g4, hash_sink.as_deref_mut())),
                     None,
                 )
+            }
+            // One closed-form gradient of the packed [sigma, r, g, b] grid:
+            // dsigma grad sigma + J_c^T dcolor in one pass over the corners.
+            (Field::Grid(_), ColorField::Grid(_)) if cx.packed.is_some() => {
+                let g4 = [sg.dsigma, sg.dcolor[0], sg.dcolor[1], sg.dcolor[2]];
+                let gx = match (cx.packed, cs) {
+                    (Some(p), Some(c)) => grid_grad::<F, 4>(p, &c, g4),
+                    _ => [F::zero(); 3],
+                };
+                (([F::zero(); 3], gx), cs)
             }
             (Field::Grid(g), ColorField::Grid(gcol)) if cx.shared_cell => {
                 let gs = cs.map_or([F::zero(); 3], |c| grid_grad::<F, 1>(g, &c, [F::one()]));

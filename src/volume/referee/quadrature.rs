@@ -211,6 +211,21 @@ pub fn grid_probe(pts: &[[f64; 3]], g: &GridDesc) -> (Vec<f64>, Vec<u8>) {
     (v, inside)
 }
 
+/// Whether each point lies more than one index cell outside the grid on
+/// some axis (index coordinate `u < -1` or `u >= n`): all eight corners
+/// are outside, so the `zero` policy's value there is exactly 0.
+pub fn beyond_one_cell(pts: &[[f64; 3]], g: &GridDesc) -> Vec<u8> {
+    pts.iter()
+        .map(|x| {
+            (0..3).any(|a| {
+                let n = g.shape[2 - a] as f64;
+                let u = (x[a] - g.bmin[a]) * (n - 1.0) / (g.bmax[a] - g.bmin[a]);
+                u < -1.0 || u >= n
+            }) as u8
+        })
+        .collect()
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -226,5 +241,18 @@ mod tests {
         assert_eq!(ref_sigma(&f, [1.0, 0.0, 0.0]), 1.0);
         assert_eq!(ref_sigma(&f, [-1.0, 0.0, 0.0]), 0.5);
         assert_eq!(ref_sigma(&f, [1.5, 0.0, 0.0]), 0.0);
+    }
+
+    #[test]
+    fn beyond_one_cell_marks_points_whose_eight_corners_are_all_outside() {
+        let g = GridDesc::sample([5, 5, 5], [-1.0; 3], [1.0; 3], Oob::Zero, |_| 3.0);
+        let pts = [
+            [-1.6, 0.0, 0.0],
+            [-1.4, 0.0, 0.0],
+            [0.0, 1.4, 0.0],
+            [0.0, 0.0, 1.5],
+            [0.0, 0.0, 0.0],
+        ];
+        assert_eq!(beyond_one_cell(&pts, &g), vec![1, 0, 0, 1, 0]);
     }
 }
