@@ -1,0 +1,49 @@
+//! The parity band of the GPU image contract (issue 17,
+//! docs/transport_gpu.md): pixels of a reference render (the f64 CPU run)
+//! far from every edge of its per-pixel classes (capture flag, disk hit,
+//! Ellis side). The f32 GPU render must give the same classes there; it may
+//! differ only within `d` pixels of an edge, where the critical curve (or a
+//! disk edge's image) crosses the neighbourhood and f32 rounding of a ray
+//! that grazes the photon orbit can decide either way.
+
+/// 1 where every pixel within Chebyshev distance `d` of pixel `i` of the
+/// `h x w` row-major image has the same value as pixel `i` in each of
+/// `classes` (each of length `h * w`), else 0.
+pub fn far_from_edges(h: usize, w: usize, classes: &[Vec<f64>], d: usize) -> Vec<u8> {
+    (0..h * w)
+        .map(|i| {
+            let (v, u) = (i / w, i % w);
+            let rows = v.saturating_sub(d)..=(v + d).min(h - 1);
+            let same = rows.into_iter().all(|vv| {
+                (u.saturating_sub(d)..=(u + d).min(w - 1))
+                    .all(|uu| classes.iter().all(|c| c[vv * w + uu] == c[i]))
+            });
+            same as u8
+        })
+        .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn pixels_within_the_band_of_an_edge_are_near_and_others_far() {
+        // 5 x 6 image, class 1 in columns >= 3.
+        let (h, w) = (5, 6);
+        let c: Vec<f64> = (0..h * w).map(|i| (i % w >= 3) as u8 as f64).collect();
+        let far = far_from_edges(h, w, &[c.clone()], 1);
+        for i in 0..h * w {
+            let u = i % w;
+            assert_eq!(far[i], (u == 0 || u == 1 || u == 4 || u == 5) as u8, "{i}");
+        }
+        let far2 = far_from_edges(h, w, &[c], 2);
+        assert_eq!(far2.iter().filter(|&&f| f == 1).count(), 2 * h);
+        // A second class map adds its own edges.
+        let row: Vec<f64> = (0..h * w).map(|i| (i / w == 0) as u8 as f64).collect();
+        let both = far_from_edges(h, w, &[vec![0.0; h * w], row], 0);
+        assert!(both.iter().all(|&f| f == 1));
+        let one = far_from_edges(h, w, &[(0..h * w).map(|i| (i == 14) as u8 as f64).collect()], 1);
+        assert_eq!(one.iter().filter(|&&f| f == 0).count(), 9);
+    }
+}
