@@ -272,17 +272,25 @@ fn ks_radius(a: f32, x: f32, y: f32, z: f32) -> f32 {
     return sqrt(2.0 * a2z2 / (s - w));
 }
 
-// H. CPU twin: src/transport/kerr.rs `kerr_h`.
-fn kerr_h(y: State) -> f32 {
+// (r, f, l . p) at a state: the Boyer–Lindquist radius, the Kerr–Schild
+// potential f = 2 M r^3 / (r^4 + a^2 z^2) and the spatial part of l_mu p^mu
+// (CPU twins: the first lines of `kerr_h` and `project`).
+fn kerr_flp(y: State) -> vec3<f32> {
     let m = P.sys.x;
     let a = P.sys.y;
     let r = ks_radius(a, y[1], y[2], y[3]);
     let r2 = r * r;
     let a2 = a * a;
-    let ra2 = r2 + a2;
     let f = 2.0 * m * r2 * r / (r2 * r2 + a2 * y[3] * y[3]);
-    let l = -y[4] + ((r * y[1] + a * y[2]) * y[5] + (r * y[2] - a * y[1]) * y[6]) / ra2 + y[3] / r * y[7];
-    return 0.5 * (-y[4] * y[4] + y[5] * y[5] + y[6] * y[6] + y[7] * y[7] - f * l * l);
+    let lp = ((r * y[1] + a * y[2]) * y[5] + (r * y[2] - a * y[1]) * y[6]) / (r2 + a2) + y[3] / r * y[7];
+    return vec3<f32>(r, f, lp);
+}
+
+// H. CPU twin: src/transport/kerr.rs `kerr_h`.
+fn kerr_h(y: State) -> f32 {
+    let g = kerr_flp(y);
+    let l = -y[4] + g.z;
+    return 0.5 * (-y[4] * y[4] + y[5] * y[5] + y[6] * y[6] + y[7] * y[7] - g.y * l * l);
 }
 
 // Hamilton's equations, line by line as the CPU twin
@@ -330,15 +338,9 @@ fn kerr_rhs(y: State) -> State {
 // `Hamiltonian for Kerr`, `project`.
 fn kerr_project(y: State) -> State {
     var o = y;
-    let m = P.sys.x;
-    let a = P.sys.y;
-    let r = ks_radius(a, y[1], y[2], y[3]);
-    let r2 = r * r;
-    let a2 = a * a;
-    let ra2 = r2 + a2;
-    let z = y[3];
-    let f = 2.0 * m * r2 * r / (r2 * r2 + a2 * z * z);
-    let lp = ((r * y[1] + a * y[2]) * y[5] + (r * y[2] - a * y[1]) * y[6]) / ra2 + z / r * y[7];
+    let g = kerr_flp(y);
+    let f = g.y;
+    let lp = g.z;
     let pt = y[4];
     let qa = y[5] * y[5] + y[6] * y[6] + y[7] * y[7] - f * lp * lp;
     let qb = 2.0 * f * pt * lp;

@@ -183,7 +183,7 @@ fn run<F: Real, const N: usize>(
     budget: &MemBudget,
 ) -> Result<Vec<Trace<F, N>>> {
     let starts: Vec<[f32; 8]> = starts.iter().map(widen).collect();
-    run_raw(ctx, system, opt, ev, &starts, budget)?
+    run_raw(ctx, system, opt, &events(ev)?, &starts, budget)?
         .iter()
         .map(trace_of)
         .collect()
@@ -194,18 +194,17 @@ fn run_raw<F: Real>(
     ctx: &GpuContext,
     system: GpuSystem,
     opt: &Options<F>,
-    ev: &[Event<F>],
+    ev: &[GpuEvent],
     starts: &[[f32; 8]],
     budget: &MemBudget,
 ) -> Result<Vec<GpuTrace>> {
-    let ev = events(ev)?;
     let tier = tier(&opt.tier)?;
     let input = TraceInput {
         system,
         tier,
         project: opt.project,
         max_steps: max_steps(opt)?,
-        events: &ev,
+        events: ev,
         starts,
     };
     Ok(TracePipeline::new(ctx, &system, &tier)?
@@ -337,17 +336,13 @@ impl<F: Real> Tracer<F> for GpuTracer<'_> {
         r_end: F,
         disk: Option<(F, F)>,
     ) -> Result<Vec<KerrRay<F>>> {
-        let mut ev = kerr_events(k, r_end);
+        let mut ev = events(&kerr_events(k, r_end))?;
         if disk.is_some() {
-            for rising in [false, true] {
-                ev.push(Event {
-                    kind: EventKind::Coord {
-                        index: 3,
-                        value: F::zero(),
-                    },
-                    rising,
-                });
-            }
+            let z = GpuEventKind::Coord {
+                index: 3,
+                value: 0.0,
+            };
+            ev.extend([false, true].map(|rising| GpuEvent { kind: z, rising }));
         }
         let system = GpuSystem::Kerr {
             mass: f(k.mass),
@@ -389,7 +384,7 @@ impl<F: Real> Tracer<F> for GpuTracer<'_> {
             self.ctx,
             spacetime(st),
             opt,
-            ev,
+            &events(ev)?,
             &rounded(starts),
             self.budget,
         )?
