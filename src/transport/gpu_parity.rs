@@ -43,7 +43,12 @@ mod tests {
         let row: Vec<f64> = (0..h * w).map(|i| (i / w == 0) as u8 as f64).collect();
         let both = far_from_edges(h, w, &[vec![0.0; h * w], row], 0);
         assert!(both.iter().all(|&f| f == 1));
-        let one = far_from_edges(h, w, &[(0..h * w).map(|i| (i == 14) as u8 as f64).collect()], 1);
+        let one = far_from_edges(
+            h,
+            w,
+            &[(0..h * w).map(|i| (i == 14) as u8 as f64).collect()],
+            1,
+        );
         assert_eq!(one.iter().filter(|&&f| f == 0).count(), 9);
     }
 }

@@ -25,6 +25,7 @@ mod pathtrace_gpu;
 mod rays;
 mod selftest;
 mod transport;
+mod transport_band;
 mod transport_gpu;
 mod transport_kerr;
 mod volume;
@@ -212,6 +213,7 @@ pub fn table() -> impl Iterator<Item = &'static OpEntry> {
         transport::OPS,
         transport_kerr::OPS,
         transport_gpu::OPS,
+        transport_band::OPS,
         voxels::OPS,
         voxels_dag::OPS,
         voxels_contour::OPS,

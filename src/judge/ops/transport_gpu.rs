@@ -17,8 +17,8 @@ use crate::real::Precision;
 use crate::scene::transport::{parse, TransportScene};
 use crate::tensor::Outputs;
 use crate::transport::integrate::Options;
-use crate::transport::tasks::Task;
-use crate::transport::{gpu, tasks};
+use crate::transport::tasks::{Curved, Task};
+use crate::transport::{gpu, image, tasks};
 
 /// Refuses what the GPU backend cannot run (anything but f32) and builds
 /// the scene's pipeline; nothing for the CPU backend.
@@ -63,6 +63,8 @@ fn timed(
     let b = &ctx.budget;
     let t = Instant::now();
     let steps = match (task, g) {
+        (Task::Curved(Curved::Image(t)), None) => image::render(t, opt, b)?.steps,
+        (Task::Curved(Curved::Image(t)), Some(c)) => gpu::render_image(c, t, opt, b)?.steps,
         (Task::Curved(_), _) => return Err(gpu::curved_not_supported()),
         (Task::Deflection(d), None) => tasks::deflection(d, opt, b, &[])?.steps,
         (Task::Deflection(d), Some(c)) => gpu::deflection(c, d, opt, b, &[])?.steps,
