@@ -404,6 +404,14 @@ pub fn render_image<F: Real>(
     render_with(task, opt, budget, &GpuTracer { ctx, budget })
 }
 
+/// The refusal for Kerr deflection lists (the kernel does not accumulate
+/// their swept azimuth; images run on the GPU).
+pub fn curved_not_supported() -> Error {
+    Error::NotSupported(
+        "Kerr deflection lists have no GPU kernel (the swept azimuth is CPU-only); run them on the CPU".into(),
+    )
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -428,12 +436,4 @@ mod tests {
         assert!(tier(&t).unwrap_err().to_string().contains("verlet"));
         assert!(tier(&Tier::Rk4(StepLaw::Fixed { h: 0.1f64 })).is_ok());
     }
-}
-
-/// The refusal for Kerr deflection lists (the kernel does not accumulate
-/// their swept azimuth; images run on the GPU).
-pub fn curved_not_supported() -> Error {
-    Error::NotSupported(
-        "Kerr deflection lists have no GPU kernel (the swept azimuth is CPU-only); run them on the CPU".into(),
-    )
 }

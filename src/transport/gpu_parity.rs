@@ -32,10 +32,10 @@ mod tests {
         // 5 x 6 image, class 1 in columns >= 3.
         let (h, w) = (5, 6);
         let c: Vec<f64> = (0..h * w).map(|i| (i % w >= 3) as u8 as f64).collect();
-        let far = far_from_edges(h, w, &[c.clone()], 1);
-        for i in 0..h * w {
+        let far = far_from_edges(h, w, std::slice::from_ref(&c), 1);
+        for (i, f) in far.iter().enumerate() {
             let u = i % w;
-            assert_eq!(far[i], (u == 0 || u == 1 || u == 4 || u == 5) as u8, "{i}");
+            assert_eq!(*f, (u == 0 || u == 1 || u == 4 || u == 5) as u8, "{i}");
         }
         let far2 = far_from_edges(h, w, &[c], 2);
         assert_eq!(far2.iter().filter(|&&f| f == 1).count(), 2 * h);
