@@ -6,6 +6,28 @@
 //! disk edge's image) crosses the neighbourhood and f32 rounding of a ray
 //! that grazes the photon orbit can decide either way.
 
+use crate::error::{Error, Result};
+use crate::tensor::{Outputs, Tensor};
+
+/// Adds to an image render's outputs `far` ([`far_from_edges`] of its
+/// `captured`, `disk_hit` and `side`, band `d`) and the metric `near_frac`
+/// (the fraction of pixels that are not far): `transport.image_band`.
+pub fn band_outputs(out: &mut Outputs, d: usize) -> Result<()> {
+    let shape = out.tensors.get("captured").map(|t| t.shape().to_vec());
+    let [h, w] = shape.unwrap_or_default()[..] else {
+        return Err(Error::invalid("task", "the image band needs a pixel grid"));
+    };
+    let classes: Vec<Vec<f64>> = ["captured", "disk_hit", "side"]
+        .iter()
+        .filter_map(|n| out.tensors.get(*n).map(|t| t.to_f64_vec()))
+        .collect();
+    let far = far_from_edges(h, w, &classes, d);
+    let near = far.iter().filter(|&&f| f == 0).count();
+    out.metric("near_frac", near as f64 / (h * w) as f64);
+    out.tensor("far", Tensor::from_shape_vec(&[h, w], far)?);
+    Ok(())
+}
+
 /// 1 where every pixel within Chebyshev distance `d` of pixel `i` of the
 /// `h x w` row-major image has the same value as pixel `i` in each of
 /// `classes` (each of length `h * w`), else 0.

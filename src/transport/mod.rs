@@ -15,16 +15,19 @@
 //!   scans, GRIN ray lists), fanned out over rays.
 //! - [`gpu`]: the same tasks and the images traced by `kernels/transport.wgsl`
 //!   (f32); [`gpu_parity`]: the band of its image contract.
-//! - [`outputs`]: a traced task as named tensors.
+//! - [`outputs`]: a traced task as named tensors; [`checks`]: observed
+//!   order and drift growth (the integrators against themselves).
 //! - [`referee`]: closed forms and quadratures in f64 that check the above
 //!   and share no code with them.
 
+pub mod checks;
 pub mod disk;
 pub mod gpu;
 pub mod gpu_parity;
 pub mod grin;
 pub mod hamiltonian;
 pub mod image;
+pub mod image_checks;
 pub mod integrate;
 pub mod kerr;
 pub mod kerr_trace;
