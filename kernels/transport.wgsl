@@ -12,18 +12,24 @@
 // `switch`, which SPIR-V-to-NIR turns into a loop: see "Loops" below): GRIN media, CPU twin
 // src/transport/grin.rs `Medium::n2_grad` / `Hamiltonian for Medium`;
 // static spherical spacetimes, CPU twin src/transport/metric.rs
-// `Spacetime::radial` / `Hamiltonian for Spacetime`. The state is always
+// `Spacetime::radial` / `Hamiltonian for Spacetime`; Kerr in Kerr–Schild
+// Cartesian coordinates, CPU twin src/transport/kerr.rs `kerr_rhs`,
+// `kerr_h`, `Hamiltonian for Kerr`, with the thin-disk continuation and the
+// constants-of-motion certificate of src/transport/kerr_trace.rs
+// `trace_kerr`. The state is always
 // 8 floats: GRIN rays use slots 0..6 (x, p) and keep 6, 7 at zero.
 // Tiers: rk4, dopri5_fixed (Dormand-Prince 5th-order solution, fixed law),
 // dopri5 (adaptive 5(4), the CPU controller). f32 only.
 // Parity case: TESTS/transport/manifest_gpu.yaml `trgpu_*` (closed forms per tier in
-// f32, CPU f32 agreement, determinism); contract docs/transport_gpu.md.
+// f32, CPU f32 agreement, determinism; Kerr and Ellis images `trgpu_img_*`
+// against the f64 CPU render and Bardeen's curve); contract docs/transport_gpu.md.
 // Host side: src/gpu/transport.rs (structs `TraceParams` = `Params`,
 // `GpuTrace` = `TraceOut`, `GpuRayState` = `RayState`; keep in sync).
 
 const SYS_MINKOWSKI: u32 = 0u;
 const SYS_SCHWARZSCHILD: u32 = 1u;
 const SYS_ELLIS: u32 = 2u;
+const SYS_KERR: u32 = 3u;
 const SYS_LUNEBURG: u32 = 10u;
 const SYS_LUNEBURG_CORE: u32 = 11u;
 const SYS_FISH_EYE: u32 = 12u;
@@ -39,6 +45,11 @@ const LAW_FIXED: u32 = 0u;
 const EV_COORD: u32 = 0u;
 const EV_SPHERE: u32 = 1u;
 const EV_APPROACH: u32 = 2u;
+const EV_KS_RADIUS: u32 = 3u;
+
+// Most equatorial crossings a Kerr disk ray makes outside the disk before
+// it ends there (src/transport/kerr_trace.rs `MAX_CROSSINGS`).
+const MAX_CROSSINGS: u32 = 64u;
 
 // End codes: src/transport/integrate.rs `End::code`.
 const END_MAX_STEPS: i32 = -1;
@@ -61,7 +72,8 @@ override SYSTEM: u32 = 0u;
 override TIER: u32 = 0u;
 
 struct Params {
-    // sys.x: mass / b0 / radius / n0; sys.y: radius / alpha.
+    // sys.x: mass / b0 / radius / n0; sys.y: radius / alpha / Kerr spin a;
+    // Kerr: sys.z, sys.w the disk's r_in, r_out (r_out = 0: no disk).
     sys: vec4<f32>,
     // law: h (fixed) or eta, h_min, h_max, 0.
     law: vec4<f32>,
@@ -99,8 +111,13 @@ struct TraceOut {
     rejected: u32,
     h_drift: f32,
     err_est: f32,
+    // Kerr: max relative drift of E, L_z, Carter Q (0 elsewhere).
+    e_drift: f32,
+    l_drift: f32,
+    q_drift: f32,
     pad0: u32,
     pad1: u32,
+    pad2: u32,
 }
 
 // A ray between dispatches: its result so far and the loop's own state.
@@ -108,10 +125,13 @@ struct RayState {
     t: TraceOut,
     k1: array<f32, 8>,
     gs: vec4<f32>,
+    // Kerr: (E, L_z, Q) of the start state.
+    c0: vec4<f32>,
     h_ctl: f32,
     just_rejected: u32,
     phase: u32,
-    pad: u32,
+    // Kerr disk: crossings of z = 0 outside the disk so far.
+    crossings: u32,
 }
 
 alias State = array<f32, 8>;
@@ -236,6 +256,141 @@ fn radial(r: f32) -> Radial {
     }
 }
 
+// ---- Kerr (Kerr–Schild) ------------------------------------------------------
+// M = P.sys.x, a = P.sys.y (the spin of the spacetime the backward ray is
+// integrated in: src/transport/observer.rs `reversed`).
+
+// Boyer–Lindquist radius of a Kerr–Schild point. CPU twin:
+// src/transport/kerr.rs `ks_radius`.
+fn ks_radius(a: f32, x: f32, y: f32, z: f32) -> f32 {
+    let a2z2 = a * a * z * z;
+    let w = x * x + y * y + z * z - a * a;
+    let s = sqrt(w * w + 4.0 * a2z2);
+    if (w >= 0.0) {
+        return sqrt(0.5 * (w + s));
+    }
+    return sqrt(2.0 * a2z2 / (s - w));
+}
+
+// (r, f, l . p) at a state: the Boyer–Lindquist radius, the Kerr–Schild
+// potential f = 2 M r^3 / (r^4 + a^2 z^2) and the spatial part of l_mu p^mu
+// (CPU twins: the first lines of `kerr_h` and `project`).
+fn kerr_flp(y: State) -> vec3<f32> {
+    let m = P.sys.x;
+    let a = P.sys.y;
+    let r = ks_radius(a, y[1], y[2], y[3]);
+    let r2 = r * r;
+    let a2 = a * a;
+    let f = 2.0 * m * r2 * r / (r2 * r2 + a2 * y[3] * y[3]);
+    let lp = ((r * y[1] + a * y[2]) * y[5] + (r * y[2] - a * y[1]) * y[6]) / (r2 + a2) + y[3] / r * y[7];
+    return vec3<f32>(r, f, lp);
+}
+
+// H. CPU twin: src/transport/kerr.rs `kerr_h`.
+fn kerr_h(y: State) -> f32 {
+    let g = kerr_flp(y);
+    let l = -y[4] + g.z;
+    return 0.5 * (-y[4] * y[4] + y[5] * y[5] + y[6] * y[6] + y[7] * y[7] - g.y * l * l);
+}
+
+// Hamilton's equations, line by line as the CPU twin
+// src/transport/kerr.rs `kerr_rhs`.
+fn kerr_rhs(y: State) -> State {
+    let m = P.sys.x;
+    let a = P.sys.y;
+    let x = y[1];
+    let yy = y[2];
+    let z = y[3];
+    let pt = y[4];
+    let px = y[5];
+    let py = y[6];
+    let pz = y[7];
+    let r = ks_radius(a, x, yy, z);
+    let r2 = r * r;
+    let a2 = a * a;
+    let ra2 = r2 + a2;
+    let n = r2 * r2 + a2 * z * z;
+    let f = 2.0 * m * r2 * r / n;
+    let lx = (r * x + a * yy) / ra2;
+    let ly = (r * yy - a * x) / ra2;
+    let lz = z / r;
+    let lpxy = lx * px + ly * py;
+    let big_l = -pt + lpxy + lz * pz;
+    let r3n = r2 * r / n;
+    let rx = x * r3n;
+    let ry = yy * r3n;
+    let rz = z * r * ra2 / n;
+    let k4 = 4.0 * r2 * r / n;
+    let fx = f * (3.0 / r - k4) * rx;
+    let fy = f * (3.0 / r - k4) * ry;
+    let fz = f * ((3.0 / r - k4) * rz - 2.0 * a2 * z / n);
+    let q = x * px + yy * py;
+    let c = (q - 2.0 * r * lpxy) / ra2 - pz * z / r2;
+    let gx = rx * c + (r * px - a * py) / ra2;
+    let gy = ry * c + (r * py + a * px) / ra2;
+    let gz = rz * c + pz / r;
+    let half_l2 = 0.5 * big_l * big_l;
+    let fl = f * big_l;
+    return State(-pt + fl, px - fl * lx, py - fl * ly, pz - fl * lz, 0.0, half_l2 * fx + fl * gx, half_l2 * fy + fl * gy, half_l2 * fz + fl * gz);
+}
+
+// Scales the spatial momenta onto H = 0 keeping E. CPU twin:
+// `Hamiltonian for Kerr`, `project`.
+fn kerr_project(y: State) -> State {
+    var o = y;
+    let g = kerr_flp(y);
+    let f = g.y;
+    let lp = g.z;
+    let pt = y[4];
+    let qa = y[5] * y[5] + y[6] * y[6] + y[7] * y[7] - f * lp * lp;
+    let qb = 2.0 * f * pt * lp;
+    let qc = -pt * pt * (1.0 + f);
+    let disc = qb * qb - 4.0 * qa * qc;
+    if (qa > 0.0 && disc >= 0.0) {
+        let k = (-qb + sqrt(disc)) / (2.0 * qa);
+        if (k > 0.0 && finite(k)) {
+            o[5] = y[5] * k;
+            o[6] = y[6] * k;
+            o[7] = y[7] * k;
+        }
+    }
+    return o;
+}
+
+// (E, L_z, Carter Q) of a state. CPU twin: src/transport/kerr.rs
+// `Kerr::constants`.
+fn kerr_constants(y: State) -> vec4<f32> {
+    let a = P.sys.y;
+    let x = y[1];
+    let yy = y[2];
+    let r = ks_radius(a, x, yy, y[3]);
+    let e = -y[4];
+    let lz = x * y[6] - yy * y[5];
+    let cos_t = y[3] / r;
+    let rho = sqrt(x * x + yy * yy);
+    let sin_t = rho / sqrt(r * r + a * a);
+    var q: f32;
+    if (rho > 0.0) {
+        let p_th = cos_t / sin_t * (x * y[5] + yy * y[6]) - r * sin_t * y[7];
+        q = p_th * p_th + cos_t * cos_t * (lz * lz / (sin_t * sin_t) - a * a * e * e);
+    } else {
+        let p_th = -r * sin_t * y[7];
+        q = p_th * p_th - cos_t * cos_t * a * a * e * e;
+    }
+    return vec4<f32>(e, lz, q, 0.0);
+}
+
+// The certificate update at an accepted state: max |X - X0| / max(|X0|, 1)
+// (CPU twin: the `on_step` closure of `trace_kerr`).
+fn kerr_drift(o: TraceOut, c0: vec4<f32>, y: State) -> TraceOut {
+    var t = o;
+    let d = abs(kerr_constants(y) - c0) / max(abs(c0), vec4<f32>(1.0));
+    t.e_drift = max(t.e_drift, d.x);
+    t.l_drift = max(t.l_drift, d.y);
+    t.q_drift = max(t.q_drift, d.z);
+    return t;
+}
+
 fn is_grin() -> bool {
     return SYSTEM >= SYS_LUNEBURG;
 }
@@ -253,6 +408,9 @@ fn rhs(y: State) -> State {
         o[4] = 0.5 * g.z;
         o[5] = 0.5 * g.w;
         return o;
+    }
+    if (SYSTEM == SYS_KERR) {
+        return kerr_rhs(y);
     }
     let c = radial(y[1]);
     let sc = sin_cos_f32(y[2]);
@@ -275,6 +433,9 @@ fn ham(y: State) -> f32 {
         let g = n2_grad(vec3<f32>(y[0], y[1], y[2]));
         return (y[3] * y[3] + y[4] * y[4] + y[5] * y[5] - g.x) * 0.5;
     }
+    if (SYSTEM == SYS_KERR) {
+        return kerr_h(y);
+    }
     let c = radial(y[1]);
     let s = sin_cos_f32(y[2]).x;
     let ang = (y[6] * y[6] + y[7] * y[7] / (s * s)) / c.r2;
@@ -289,6 +450,8 @@ fn scale(y: State) -> f32 {
         return y[1] - 2.0 * P.sys.x;
     } else if (SYSTEM == SYS_ELLIS) {
         return sqrt(P.sys.x * P.sys.x + y[1] * y[1]);
+    } else if (SYSTEM == SYS_KERR) {
+        return ks_radius(P.sys.y, y[1], y[2], y[3]);
     } else {
         return 1.0;
     }
@@ -307,6 +470,9 @@ fn project(y: State) -> State {
             o[5] = y[5] * s;
         }
         return o;
+    }
+    if (SYSTEM == SYS_KERR) {
+        return kerr_project(y);
     }
     let c = radial(y[1]);
     let s = sin_cos_f32(y[2]).x;
@@ -425,6 +591,8 @@ fn ev_g(e: u32, y: State) -> f32 {
         return y[P.ev_index[e]] - v;
     } else if (P.ev_kind[e] == EV_SPHERE) {
         return y[0] * y[0] + y[1] * y[1] + y[2] * y[2] - v * v;
+    } else if (P.ev_kind[e] == EV_KS_RADIUS) {
+        return ks_radius(P.sys.y, y[1], y[2], y[3]) - v;
     } else {
         let p = P.ev_pt[e];
         return (y[0] - p.x) * y[3] + (y[1] - p.y) * y[4] + (y[2] - p.z) * y[5];
@@ -515,6 +683,13 @@ fn trace(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups)
         o.rejected = 0u;
         o.h_drift = abs(ham(y));
         o.err_est = 0.0;
+        o.e_drift = 0.0;
+        o.l_drift = 0.0;
+        o.q_drift = 0.0;
+        s.crossings = 0u;
+        if (SYSTEM == SYS_KERR) {
+            s.c0 = kerr_constants(y);
+        }
         s.gs = gs_of(y);
         if (!all_finite(y)) {
             o.end_code = END_NON_FINITE;
@@ -535,6 +710,8 @@ fn trace(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups)
     var h_ctl = s.h_ctl;
     var k1 = s.k1;
     var just_rejected = s.just_rejected != 0u;
+    var crossings = s.crossings;
+    let c0 = s.c0;
     var done = false;
     for (var it = 0u; it < P.chunk; it++) {
         if (o.steps >= P.max_steps) {
@@ -625,6 +802,26 @@ fn trace(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups)
             y = hit_y;
             o.lambda += hit_theta * h;
             o.h_drift = max(o.h_drift, abs(ham(hit_y)));
+            if (SYSTEM == SYS_KERR) {
+                o = kerr_drift(o, c0, y);
+                // A crossing of z = 0 (events 2, 3) outside the disk: the
+                // ray goes on from the plane itself, a fresh trace as on
+                // the CPU (controller and events restarted).
+                let r = ks_radius(P.sys.y, y[1], y[2], y[3]);
+                if (P.sys.w > 0.0 && hit >= 2 && !(r >= P.sys.z && r <= P.sys.w) && crossings < MAX_CROSSINGS) {
+                    crossings += 1u;
+                    y[3] = 0.0;
+                    o.h_drift = max(o.h_drift, abs(ham(y)));
+                    o = kerr_drift(o, c0, y);
+                    gs = gs_of(y);
+                    if (TIER == TIER_DP45) {
+                        h_ctl = max(min(P.ctl.w, P.ctl2.y), P.ctl2.x);
+                    }
+                    k1 = rhs(y);
+                    just_rejected = false;
+                    continue;
+                }
+            }
             o.end_code = hit;
             done = true;
             break;
@@ -633,6 +830,9 @@ fn trace(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups)
         y = y1;
         o.lambda += h;
         o.h_drift = max(o.h_drift, abs(ham(y1)));
+        if (SYSTEM == SYS_KERR) {
+            o = kerr_drift(o, c0, y1);
+        }
     }
     o.y = y;
     s.t = o;
@@ -640,6 +840,7 @@ fn trace(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups)
     s.h_ctl = h_ctl;
     s.k1 = k1;
     s.just_rejected = u32(just_rejected);
+    s.crossings = crossings;
     if (done) {
         s.phase = PHASE_DONE;
     }

@@ -1,6 +1,7 @@
 //! Curved rays on the GPU: `kernels/transport.wgsl` entry `trace`, one
-//! thread per ray, for GRIN media and static spherical spacetimes
-//! (Minkowski, Schwarzschild, Ellis) with the RK4, fixed-step
+//! thread per ray, for GRIN media, static spherical spacetimes
+//! (Minkowski, Schwarzschild, Ellis) and Kerr (Kerr–Schild, with the thin
+//! equatorial disk and the `E`, `L_z`, `Q` certificate) with the RK4, fixed-step
 //! Dormand–Prince 5 and adaptive Dormand–Prince 5(4) tiers, events located
 //! as on the CPU.
 //!
@@ -23,28 +24,58 @@ use crate::error::{Error, Result};
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum GpuSystem {
     Minkowski,
-    Schwarzschild { mass: f32 },
-    Ellis { b0: f32 },
-    Luneburg { radius: f32 },
-    LuneburgCore { radius: f32 },
-    FishEye { n0: f32, radius: f32 },
-    Fibre { n0: f32, alpha: f32 },
-    Sech { n0: f32, alpha: f32 },
+    Schwarzschild {
+        mass: f32,
+    },
+    Ellis {
+        b0: f32,
+    },
+    /// Kerr–Schild Kerr with spin `a`; `disk` = `(r_in, r_out)` makes
+    /// crossings of `z = 0` inside the annulus end the ray (events 2, 3
+    /// must then watch `z` falling and rising), others continue it.
+    Kerr {
+        mass: f32,
+        a: f32,
+        disk: Option<(f32, f32)>,
+    },
+    Luneburg {
+        radius: f32,
+    },
+    LuneburgCore {
+        radius: f32,
+    },
+    FishEye {
+        n0: f32,
+        radius: f32,
+    },
+    Fibre {
+        n0: f32,
+        alpha: f32,
+    },
+    Sech {
+        n0: f32,
+        alpha: f32,
+    },
 }
 
 impl GpuSystem {
     /// Kernel code, parameters, and the phase-space dimension (6 GRIN, 8
     /// spacetimes).
-    fn code(&self) -> (u32, [f32; 2], u32) {
+    fn code(&self) -> (u32, [f32; 4], u32) {
+        let two = |a, b| [a, b, 0.0, 0.0];
         match *self {
-            GpuSystem::Minkowski => (0, [0.0; 2], 8),
-            GpuSystem::Schwarzschild { mass } => (1, [mass, 0.0], 8),
-            GpuSystem::Ellis { b0 } => (2, [b0, 0.0], 8),
-            GpuSystem::Luneburg { radius } => (10, [radius, 0.0], 6),
-            GpuSystem::LuneburgCore { radius } => (11, [radius, 0.0], 6),
-            GpuSystem::FishEye { n0, radius } => (12, [n0, radius], 6),
-            GpuSystem::Fibre { n0, alpha } => (13, [n0, alpha], 6),
-            GpuSystem::Sech { n0, alpha } => (14, [n0, alpha], 6),
+            GpuSystem::Minkowski => (0, [0.0; 4], 8),
+            GpuSystem::Schwarzschild { mass } => (1, two(mass, 0.0), 8),
+            GpuSystem::Ellis { b0 } => (2, two(b0, 0.0), 8),
+            GpuSystem::Kerr { mass, a, disk } => {
+                let (r_in, r_out) = disk.unwrap_or((0.0, 0.0));
+                (3, [mass, a, r_in, r_out], 8)
+            }
+            GpuSystem::Luneburg { radius } => (10, two(radius, 0.0), 6),
+            GpuSystem::LuneburgCore { radius } => (11, two(radius, 0.0), 6),
+            GpuSystem::FishEye { n0, radius } => (12, two(n0, radius), 6),
+            GpuSystem::Fibre { n0, alpha } => (13, two(n0, alpha), 6),
+            GpuSystem::Sech { n0, alpha } => (14, two(n0, alpha), 6),
         }
     }
 }
@@ -75,9 +106,20 @@ pub enum GpuTier {
 /// What `g` an event watches (`integrate::EventKind`).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum GpuEventKind {
-    Coord { index: u32, value: f32 },
-    Sphere { radius: f32 },
-    Approach { point: [f32; 3] },
+    Coord {
+        index: u32,
+        value: f32,
+    },
+    Sphere {
+        radius: f32,
+    },
+    Approach {
+        point: [f32; 3],
+    },
+    /// The Boyer–Lindquist radius of a Kerr–Schild state (Kerr only).
+    KsRadius {
+        value: f32,
+    },
 }
 
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -129,8 +171,9 @@ pub struct TraceParams {
 }
 const _: () = assert!(std::mem::size_of::<TraceParams>() == 240);
 
-/// One ray's result (`struct TraceOut` of the kernel; 64 bytes): the CPU's
-/// `integrate::Trace` in f32.
+/// One ray's result (`struct TraceOut` of the kernel; 80 bytes): the CPU's
+/// `integrate::Trace` in f32, and for Kerr the certificate of
+/// `kerr_trace::KerrRay` (`drift` of `E`, `L_z`, `Q`).
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
 pub struct GpuTrace {
@@ -142,24 +185,28 @@ pub struct GpuTrace {
     pub rejected: u32,
     pub h_drift: f32,
     pub err_est: f32,
-    pub _pad: [u32; 2],
+    pub drift: [f32; 3],
+    pub _pad: [u32; 3],
 }
-const _: () = assert!(std::mem::size_of::<GpuTrace>() == 64);
+const _: () = assert!(std::mem::size_of::<GpuTrace>() == 80);
 
-/// A ray between dispatches (`struct RayState` of the kernel; 128 bytes).
+/// A ray between dispatches (`struct RayState` of the kernel; 160 bytes).
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
 pub struct GpuRayState {
     pub trace: GpuTrace,
     pub k1: [f32; 8],
     pub gs: [f32; 4],
+    /// Kerr: `(E, L_z, Q, 0)` of the start.
+    pub c0: [f32; 4],
     pub h_ctl: f32,
     pub just_rejected: u32,
     /// 0 fresh, 1 running, 2 done.
     pub phase: u32,
-    pub _pad: u32,
+    /// Kerr disk: crossings of `z = 0` outside the disk so far.
+    pub crossings: u32,
 }
-const _: () = assert!(std::mem::size_of::<GpuRayState>() == 128);
+const _: () = assert!(std::mem::size_of::<GpuRayState>() == 160);
 
 const PHASE_DONE: u32 = 2;
 
@@ -190,7 +237,7 @@ impl TraceParams {
         let mut p = TraceParams::zeroed();
         let (system, sys, n_dim) = v.system.code();
         (p.system, p.n_dim) = (system, n_dim);
-        p.sys = [sys[0], sys[1], 0.0, 0.0];
+        p.sys = sys;
         match v.tier {
             GpuTier::Rk4(l) | GpuTier::Dopri5Fixed(l) => (p.law_kind, p.law) = law(l),
             GpuTier::Dopri5 {
@@ -222,6 +269,7 @@ impl TraceParams {
                     p.ev_kind[i] = 2;
                     p.ev_pt[i] = [point[0], point[1], point[2], 0.0];
                 }
+                GpuEventKind::KsRadius { value } => (p.ev_kind[i], p.ev_val[i]) = (3, value),
             }
         }
         p
@@ -247,6 +295,37 @@ fn validate(v: &TraceInput) -> Result<()> {
             at,
             "a coordinate event watches a slot past the state",
         ));
+    }
+    let kerr = matches!(v.system, GpuSystem::Kerr { .. });
+    if v.events
+        .iter()
+        .any(|e| matches!(e.kind, GpuEventKind::KsRadius { .. }) && !kerr)
+    {
+        return Err(Error::invalid(
+            at,
+            "a Kerr-Schild radius event outside Kerr",
+        ));
+    }
+    if let GpuSystem::Kerr {
+        disk: Some((r_in, r_out)),
+        ..
+    } = v.system
+    {
+        let z_events = v.events.len() == 4
+            && v.events[2..].iter().zip([false, true]).all(|(e, rising)| {
+                e.rising == rising
+                    && e.kind
+                        == GpuEventKind::Coord {
+                            index: 3,
+                            value: 0.0,
+                        }
+            });
+        if !(r_in > 0.0 && r_out > r_in && z_events) {
+            return Err(Error::invalid(
+                at,
+                "a Kerr disk needs 0 < r_in < r_out and events 2, 3 on z = 0 falling, rising",
+            ));
+        }
     }
     let law_ok = |l: GpuLaw| match l {
         GpuLaw::Fixed { h } => h > 0.0 && h.is_finite(),
@@ -340,7 +419,8 @@ impl TracePipeline {
         let n = v.starts.len() as u64;
         let bytes = n * std::mem::size_of::<GpuRayState>() as u64;
         // The state buffer, its upload copy and one readback.
-        budget.check("gpu transport rays", bytes_for(n, 3 * 128))?;
+        let per = std::mem::size_of::<GpuRayState>() as u64;
+        budget.check("gpu transport rays", bytes_for(n, 3 * per))?;
         let u = uniform(ctx, "trace params", &p);
         let init: Vec<GpuRayState> = v
             .starts

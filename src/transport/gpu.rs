@@ -1,7 +1,10 @@
 //! The transport renderer's GPU backend (issue 17): [`deflection`],
 //! [`observer_scan`] and [`grin_rays`] take what their CPU namesakes in
 //! [`super::tasks`] take and return the same outputs, with the rays traced
-//! by `kernels/transport.wgsl` through `crate::gpu::transport`.
+//! by `kernels/transport.wgsl` through `crate::gpu::transport`;
+//! [`render_image`] renders Kerr and Ellis images through
+//! `image::render_with` with the [`GpuTracer`] (the CPU's observers, start
+//! states and shading; only the rays run on the GPU).
 //!
 //! The start states are the CPU's own (`tasks::*_setup`: constants of
 //! motion and momenta computed in f64 on the host, then rounded to f32;
@@ -9,14 +12,19 @@
 //! the same bits; the outputs are assembled by the CPU's `tasks::*_out`.
 //! The kernel computes in f32: other precisions are refused by the caller.
 //! Not on the GPU (refused by name): dense-grid media, the kick-drift and
-//! implicit tiers, polyline dumps.
+//! implicit tiers, polyline dumps, Kerr deflection lists (their swept
+//! azimuth is not accumulated by the kernel).
 
 use super::grin::Medium;
+use super::image::{render_with, ImageOut, ImageTask, Tracer};
 use super::integrate::{End, Event, EventKind, Options, StepLaw, Tier, Trace};
+use super::kerr::Kerr;
+use super::kerr_trace::{kerr_events, KerrRay};
 use super::metric::Spacetime;
 use super::tasks::{
     deflection_out, deflection_setup, grin_out, grin_setup, observer_out, observer_setup,
-    observer_start, Deflection, DeflectionOut, GrinOut, GrinRays, ObserverOut, ObserverScan, Task,
+    observer_start, Curved, Deflection, DeflectionOut, GrinOut, GrinRays, ObserverOut,
+    ObserverScan, Task,
 };
 use crate::budget::MemBudget;
 use crate::error::{Error, Result};
@@ -107,11 +115,7 @@ fn events<F: Real>(ev: &[Event<F>]) -> Result<Vec<GpuEvent>> {
                     EventKind::Approach { point } => GpuEventKind::Approach {
                         point: point.map(f),
                     },
-                    EventKind::KsRadius { .. } => {
-                        return Err(Error::NotSupported(
-                            "Kerr-Schild horizon events have no GPU kernel yet (issue 17)".into(),
-                        ))
-                    }
+                    EventKind::KsRadius { value, .. } => GpuEventKind::KsRadius { value: f(value) },
                 },
                 rising: e.rising,
             })
@@ -178,19 +182,34 @@ fn run<F: Real, const N: usize>(
     starts: &[[F; N]],
     budget: &MemBudget,
 ) -> Result<Vec<Trace<F, N>>> {
-    let ev = events(ev)?;
     let starts: Vec<[f32; 8]> = starts.iter().map(widen).collect();
+    run_raw(ctx, system, opt, &events(ev)?, &starts, budget)?
+        .iter()
+        .map(trace_of)
+        .collect()
+}
+
+/// Traces f32 `starts` on the GPU: the kernel's records, input order.
+fn run_raw<F: Real>(
+    ctx: &GpuContext,
+    system: GpuSystem,
+    opt: &Options<F>,
+    ev: &[GpuEvent],
+    starts: &[[f32; 8]],
+    budget: &MemBudget,
+) -> Result<Vec<GpuTrace>> {
     let tier = tier(&opt.tier)?;
     let input = TraceInput {
         system,
         tier,
         project: opt.project,
         max_steps: max_steps(opt)?,
-        events: &ev,
-        starts: &starts,
+        events: ev,
+        starts,
     };
-    let (traces, _) = TracePipeline::new(ctx, &system, &tier)?.run(ctx, &input, budget)?;
-    traces.iter().map(trace_of).collect()
+    Ok(TracePipeline::new(ctx, &system, &tier)?
+        .run(ctx, &input, budget)?
+        .0)
 }
 
 /// Builds the pipeline `task` will use (so a caller can keep its compile
@@ -202,7 +221,18 @@ pub fn warm<F: Real>(
     budget: &MemBudget,
 ) -> Result<()> {
     let (system, opt) = match task {
-        Task::Curved(_) => return Err(curved_not_supported()),
+        Task::Curved(Curved::KerrDeflection(_)) => return Err(curved_not_supported()),
+        Task::Curved(Curved::Image(ImageTask::Kerr(_))) => (
+            GpuSystem::Kerr {
+                mass: 1.0,
+                a: 0.0,
+                disk: None,
+            },
+            *opt,
+        ),
+        Task::Curved(Curved::Image(ImageTask::Ellis(e))) => {
+            (GpuSystem::Ellis { b0: e.b0 as f32 }, *opt)
+        }
         Task::Deflection(d) => (spacetime(&d.spacetime), *opt),
         Task::Observer(s) => (spacetime(&s.spacetime), *opt),
         Task::Grin(g) => {
@@ -283,6 +313,105 @@ pub fn grin_rays<F: Real>(
     Ok(grin_out(task, all, dump))
 }
 
+/// Image rays on the GPU: [`Tracer`] for `image::render_with`. Start
+/// states arrive in f64 (the CPU observers') and are rounded once to f32,
+/// as the CPU f32 run rounds them.
+pub struct GpuTracer<'a> {
+    pub ctx: &'a GpuContext,
+    pub budget: &'a MemBudget,
+}
+
+fn rounded(starts: &[[f64; 8]]) -> Vec<[f32; 8]> {
+    starts.iter().map(|s| s.map(|v| v as f32)).collect()
+}
+
+impl<F: Real> Tracer<F> for GpuTracer<'_> {
+    /// `trace_kerr` on the GPU (events of `kerr_events`, plus `z` falling
+    /// and rising for a disk); `sweep` is left 0 (images do not use it).
+    fn kerr(
+        &self,
+        k: &Kerr<F>,
+        starts: &[[f64; 8]],
+        opt: &Options<F>,
+        r_end: F,
+        disk: Option<(F, F)>,
+    ) -> Result<Vec<KerrRay<F>>> {
+        let mut ev = events(&kerr_events(k, r_end))?;
+        if disk.is_some() {
+            let z = GpuEventKind::Coord {
+                index: 3,
+                value: 0.0,
+            };
+            ev.extend([false, true].map(|rising| GpuEvent { kind: z, rising }));
+        }
+        let system = GpuSystem::Kerr {
+            mass: f(k.mass),
+            a: f(k.a),
+            disk: disk.map(|(a, b)| (f(a), f(b))),
+        };
+        let raw = run_raw(self.ctx, system, opt, &ev, &rounded(starts), self.budget)?;
+        raw.iter()
+            .map(|g| {
+                let t: Trace<F, 8> = trace_of(g)?;
+                let disk_r = match (t.end, disk) {
+                    (End::Event(2 | 3), Some((r_in, r_out))) => {
+                        Some(k.radius(&t.y)).filter(|r| *r >= r_in && *r <= r_out)
+                    }
+                    _ => None,
+                };
+                Ok(KerrRay {
+                    y: t.y,
+                    end: t.end,
+                    steps: t.steps,
+                    h_drift: t.h_drift,
+                    err_est: t.err_est,
+                    drift: g.drift.map(|d| F::of(d as f64)),
+                    sweep: F::zero(),
+                    disk_r,
+                })
+            })
+            .collect()
+    }
+
+    fn spherical(
+        &self,
+        st: &Spacetime<F>,
+        starts: &[[f64; 8]],
+        opt: &Options<F>,
+        ev: &[Event<F>],
+    ) -> Result<Vec<Trace<F, 8>>> {
+        run_raw(
+            self.ctx,
+            spacetime(st),
+            opt,
+            &events(ev)?,
+            &rounded(starts),
+            self.budget,
+        )?
+        .iter()
+        .map(trace_of)
+        .collect()
+    }
+}
+
+/// [`super::image::render`] with the rays traced on the GPU.
+pub fn render_image<F: Real>(
+    ctx: &GpuContext,
+    task: &ImageTask,
+    opt: &Options<F>,
+    budget: &MemBudget,
+) -> Result<ImageOut<F>> {
+    render_with(task, opt, budget, &GpuTracer { ctx, budget })
+}
+
+/// The refusal for Kerr deflection lists (the kernel does not accumulate
+/// their swept azimuth; images run on the GPU).
+pub fn curved_not_supported() -> Error {
+    Error::NotSupported(
+        "Kerr deflection lists have no GPU kernel (the swept azimuth is CPU-only); run them on the CPU".into(),
+    )
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -307,11 +436,4 @@ mod tests {
         assert!(tier(&t).unwrap_err().to_string().contains("verlet"));
         assert!(tier(&Tier::Rk4(StepLaw::Fixed { h: 0.1f64 })).is_ok());
     }
-}
-
-/// The refusal for Kerr lists and Kerr/Ellis images: no kernel yet (issue 17).
-pub fn curved_not_supported() -> Error {
-    Error::NotSupported(
-        "Kerr deflection lists and Kerr/Ellis images have no GPU kernel yet (issue 17); run them on the CPU".into(),
-    )
 }

@@ -17,9 +17,9 @@
 //! universe, 0 undecided).
 
 use super::disk::{checker, disk_colour, isco_numeric, redshift};
-use super::integrate::{check, trace, End, Event, EventKind, Options};
+use super::integrate::{check, trace, End, Event, EventKind, Options, Trace};
 use super::kerr::{kerr_rhs, Kerr};
-use super::kerr_trace::{kerr_events, trace_kerr};
+use super::kerr_trace::{kerr_events, trace_kerr, KerrRay};
 use super::metric::Spacetime;
 use super::observer::{image_plane, planar_split, reversed, DistantObserver, LocalObserver};
 use crate::budget::{bytes_for, MemBudget};
@@ -145,19 +145,86 @@ fn grid_ok(w: usize, h: usize, budget: &MemBudget) -> Result<()> {
     budget.check("image rays", bytes_for((w * h) as u64, 160))
 }
 
+/// Traces an image's rays from their f64 start states: the CPU fan-out
+/// ([`CpuTracer`]) or the GPU kernel (`super::gpu::GpuTracer`, issue 17).
+/// Kerr rays follow `trace_kerr` in `k` (the reversed spacetime);
+/// spherical rays `trace` in `st` with `ev`.
+pub trait Tracer<F: Real> {
+    fn kerr(
+        &self,
+        k: &Kerr<F>,
+        starts: &[[f64; 8]],
+        opt: &Options<F>,
+        r_end: F,
+        disk: Option<(F, F)>,
+    ) -> Result<Vec<KerrRay<F>>>;
+    fn spherical(
+        &self,
+        st: &Spacetime<F>,
+        starts: &[[f64; 8]],
+        opt: &Options<F>,
+        ev: &[Event<F>],
+    ) -> Result<Vec<Trace<F, 8>>>;
+}
+
+/// The CPU fan-out (`parallel::par_collect`, one ray per item).
+pub struct CpuTracer;
+
+impl<F: Real> Tracer<F> for CpuTracer {
+    fn kerr(
+        &self,
+        k: &Kerr<F>,
+        starts: &[[f64; 8]],
+        opt: &Options<F>,
+        r_end: F,
+        disk: Option<(F, F)>,
+    ) -> Result<Vec<KerrRay<F>>> {
+        Ok(par_collect("transport.kerr_image", starts.len(), |i| {
+            trace_kerr(k, starts[i].map(F::of), opt, r_end, disk)
+        }))
+    }
+
+    fn spherical(
+        &self,
+        st: &Spacetime<F>,
+        starts: &[[f64; 8]],
+        opt: &Options<F>,
+        ev: &[Event<F>],
+    ) -> Result<Vec<Trace<F, 8>>> {
+        Ok(par_collect("transport.ellis_image", starts.len(), |i| {
+            trace(st, starts[i].map(F::of), opt, ev, |_, _| {})
+        }))
+    }
+}
+
 /// Renders `task` in precision `F`.
 pub fn render<F: Real>(
     task: &ImageTask,
     opt: &Options<F>,
     budget: &MemBudget,
 ) -> Result<ImageOut<F>> {
+    render_with(task, opt, budget, &CpuTracer)
+}
+
+/// Renders `task` with its rays traced by `tr` (same outputs).
+pub fn render_with<F: Real>(
+    task: &ImageTask,
+    opt: &Options<F>,
+    budget: &MemBudget,
+    tr: &impl Tracer<F>,
+) -> Result<ImageOut<F>> {
     match task {
-        ImageTask::Kerr(k) => kerr_image(k, opt, budget),
-        ImageTask::Ellis(e) => ellis_image(e, opt, budget),
+        ImageTask::Kerr(k) => kerr_image(k, opt, budget, tr),
+        ImageTask::Ellis(e) => ellis_image(e, opt, budget, tr),
     }
 }
 
-fn kerr_image<F: Real>(t: &KerrImage, opt: &Options<F>, budget: &MemBudget) -> Result<ImageOut<F>> {
+fn kerr_image<F: Real>(
+    t: &KerrImage,
+    opt: &Options<F>,
+    budget: &MemBudget,
+    tr: &impl Tracer<F>,
+) -> Result<ImageOut<F>> {
     let k = t.kerr;
     if !(k.mass > 0.0 && k.a.abs() < k.mass && k.mass.is_finite()) {
         return Err(Error::invalid(
@@ -229,9 +296,7 @@ fn kerr_image<F: Real>(t: &KerrImage, opt: &Options<F>, budget: &MemBudget) -> R
         }
     };
     let starts: Vec<[f64; 8]> = (0..n).map(launch).collect::<Result<_>>()?;
-    let rays = par_collect("transport.kerr_image", n, |i| {
-        trace_kerr(&kf, starts[i].map(F::of), opt, F::of(t.r_end), disk)
-    });
+    let rays = tr.kerr(&kf, &starts, opt, F::of(t.r_end), disk)?;
     let mut out = ImageOut {
         shape,
         disk_r_in: r_in,
@@ -282,6 +347,7 @@ fn ellis_image<F: Real>(
     t: &EllisImage,
     opt: &Options<F>,
     budget: &MemBudget,
+    tr: &impl Tracer<F>,
 ) -> Result<ImageOut<F>> {
     grid_ok(t.width, t.height, budget)?;
     if !(t.b0 > 0.0
@@ -316,7 +382,7 @@ fn ellis_image<F: Real>(
     let (w, h) = (t.width, t.height);
     let f = (h as f64 / 2.0) / (t.fov_deg.to_radians() / 2.0).tan();
     let st64 = Spacetime::Ellis { b0: t.b0 };
-    let rays = par_collect("transport.ellis_image", w * h, |i| {
+    let setup = par_collect("transport.ellis_image", w * h, |i| {
         let (u, v) = (i % w, i / w);
         let x = (u as f64 + 0.5 - w as f64 / 2.0) / f;
         let y = -(v as f64 + 0.5 - h as f64 / 2.0) / f;
@@ -333,10 +399,12 @@ fn ellis_image<F: Real>(
             p[1],
             p[2],
             p[3],
-        ]
-        .map(F::of);
-        (trace(&st, y0, opt, &ev, |_, _| {}), tv)
+        ];
+        (y0, tv)
     });
+    let starts: Vec<[f64; 8]> = setup.iter().map(|s| s.0).collect();
+    let traces = tr.spherical(&st, &starts, opt, &ev)?;
+    let rays: Vec<_> = traces.into_iter().zip(setup.iter().map(|s| s.1)).collect();
     let mut out = ImageOut {
         shape: vec![h, w],
         ..Default::default()

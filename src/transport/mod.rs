@@ -15,7 +15,8 @@
 //!   Yoshida 4, implicit midpoint), located events, the per-ray loop.
 //! - [`tasks`]: what a scene asks for (deflection lists, observer angle
 //!   scans, GRIN ray lists), fanned out over rays.
-//! - [`gpu`]: the same tasks traced by `kernels/transport.wgsl` (f32).
+//! - [`gpu`]: the same tasks and the images traced by `kernels/transport.wgsl`
+//!   (f32); [`gpu_parity`]: the band of its image contract.
 //! - [`outputs`]: a traced task as named tensors; [`checks`]: observed
 //!   order and drift growth (the integrators against themselves).
 //! - [`referee`]: closed forms and quadratures in f64 that check the above
@@ -24,6 +25,7 @@
 pub mod checks;
 pub mod disk;
 pub mod gpu;
+pub mod gpu_parity;
 pub mod grin;
 pub mod hamiltonian;
 pub mod image;

@@ -94,8 +94,7 @@ pub fn run_task<F: Real>(
 ) -> Result<Vec<Vec<f64>>> {
     let t = Instant::now();
     let (rays, steps, q): (usize, Vec<i32>, Vec<Vec<f64>>) = match task {
-        Task::Curved(_) if gpu.is_some() => return Err(super::gpu::curved_not_supported()),
-        Task::Curved(c) => run_curved(c, opt, budget, out)?,
+        Task::Curved(c) => run_curved(c, opt, budget, out, gpu)?,
         Task::Deflection(d) => {
             let r = match gpu {
                 None => deflection(d, opt, budget, dump)?,
@@ -269,14 +268,20 @@ fn image_tensors<F: Real>(
 /// `disk_inner_r` (smallest disk radius hit, -1 if none) and `disk_r_in`
 /// (the ISCO the renderer used); metrics `max_h_drift`, `max_e_drift`,
 /// `max_l_drift`, `max_q_drift`. Returns rays, steps and per-ray values.
+/// With `gpu`, images are traced by `super::gpu` (same outputs).
 pub fn run_curved<F: Real>(
     c: &Curved,
     opt: &Options<F>,
     budget: &MemBudget,
     out: &mut Outputs,
+    gpu: Option<&crate::gpu::GpuContext>,
 ) -> Result<(usize, Vec<i32>, Vec<Vec<f64>>)> {
-    match c {
-        Curved::KerrDeflection(d) => {
+    match (c, gpu) {
+        (Curved::KerrDeflection(_), Some(_)) => Err(super::gpu::curved_not_supported()),
+        (Curved::Image(t), Some(g)) => {
+            image_tensors(super::gpu::render_image(g, t, opt, budget)?, out)
+        }
+        (Curved::KerrDeflection(d), None) => {
             let r = kerr_deflection(d, opt)?;
             let n = r.deflection.len();
             let q = r.deflection.iter().map(|v| vec![v.f64()]).collect();
@@ -295,6 +300,6 @@ pub fn run_curved<F: Real>(
             out.tensor("reason", Tensor::from_shape_vec(&[n], r.reason)?);
             Ok((n, r.steps, q))
         }
-        Curved::Image(t) => image_tensors(render_image(t, opt, budget)?, out),
+        (Curved::Image(t), None) => image_tensors(render_image(t, opt, budget)?, out),
     }
 }

@@ -8,8 +8,8 @@ use crate::error::Result;
 use crate::gpu::GpuContext;
 use crate::tensor::Outputs;
 use crate::transport::integrate::Options;
-use crate::transport::tasks::Task;
-use crate::transport::{gpu, tasks};
+use crate::transport::tasks::{Curved, Task};
+use crate::transport::{gpu, image, tasks};
 
 /// Traces `task` on the CPU (`gpu` None) or the GPU; the seconds and the
 /// photon-steps taken.
@@ -21,6 +21,8 @@ fn traced(
 ) -> Result<(f64, u64)> {
     let t = Instant::now();
     let steps = match (task, g) {
+        (Task::Curved(Curved::Image(t)), None) => image::render(t, opt, b)?.steps,
+        (Task::Curved(Curved::Image(t)), Some(c)) => gpu::render_image(c, t, opt, b)?.steps,
         (Task::Curved(_), _) => return Err(gpu::curved_not_supported()),
         (Task::Deflection(d), None) => tasks::deflection(d, opt, b, &[])?.steps,
         (Task::Deflection(d), Some(c)) => gpu::deflection(c, d, opt, b, &[])?.steps,

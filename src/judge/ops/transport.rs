@@ -2,9 +2,11 @@
 //! fan-out, or `kernels/transport.wgsl` under `backend: gpu`, f32, the
 //! pipeline built before the timer starts), its referees
 //! (`transport::referee` by way of `scene::transport_refs`, `referee_kerr`:
-//! closed forms and quadratures in f64), its self-checks (`transport::checks`, `image_checks`) and the
-//! backend comparison (`judge::measure::transport`). SCENES.md lists the
-//! render's outputs per task (`transport::outputs`).
+//! closed forms and quadratures in f64), its self-checks
+//! (`transport::checks`, `image_checks`), the GPU image band
+//! (`transport::gpu_parity`) and the backend comparison
+//! (`judge::measure::transport`). SCENES.md lists the render's outputs per
+//! task (`transport::outputs`).
 
 use super::{BackendKind, OpCtx};
 use crate::error::{Error, Result};
@@ -14,9 +16,10 @@ use crate::scene::transport::{parse, ResearchPreset, ResearchSpec, TaskSpec, Tra
 use crate::scene::transport_refs as refs;
 use crate::tensor::Outputs;
 use crate::transport::checks::{convergence_order, drift_growth};
+use crate::transport::gpu_parity::band_outputs;
 use crate::transport::image::{render as render_image, ImageOut, ImageTask};
 use crate::transport::image_checks::kerr_closed_form;
-use crate::transport::outputs::{f64s, run_task};
+use crate::transport::outputs::{f64s, run_curved, run_task};
 use crate::transport::tasks::{shadow_angle, Curved, Task};
 
 ops! {
@@ -40,6 +43,8 @@ ops! {
     "transport.kerr_closed_form" Any kerr_closed_form_op []
         "Bardeen's shadow per pixel (0/1, 2 = curve crosses the pixel), horizon, ergosphere, photon orbits, ISCO";
     "transport.image_mirror" Cpu mirror [] "the rendered image flipped left-right (image_lr) and top-bottom (image_ud)";
+    "transport.image_band" Cpu image_band ["band_px"]
+        "the CPU render of an image scene plus `far`: 1 where capture, disk hit and side are constant within params.band_px pixels";
     "transport.research_diff" Cpu research_diff []
         "per-pixel difference between the scene's integrator and the validate preset";
     "transport.perf_backends" GpuF32 perf_backends []
@@ -196,6 +201,23 @@ fn mirror_in<F: Real>(ctx: &OpCtx, s: &TransportScene) -> Result<Outputs> {
 fn mirror(ctx: &OpCtx) -> Result<Outputs> {
     let s = scene(ctx)?;
     by_precision!(ctx, mirror_in(ctx, &s))
+}
+
+/// The CPU render in the case's precision (the f64 referee of the GPU
+/// image contract, docs/transport_gpu.md) with its parity band.
+fn band_in<F: Real>(ctx: &OpCtx, s: &TransportScene, d: usize) -> Result<Outputs> {
+    let c = Curved::Image(curved_image(s)?);
+    let (_, opt) = s.build::<F>()?;
+    let mut out = Outputs::default();
+    run_curved(&c, &opt, &ctx.budget, &mut out, None)?;
+    band_outputs(&mut out, d)?;
+    Ok(out)
+}
+
+fn image_band(ctx: &OpCtx) -> Result<Outputs> {
+    let s = scene(ctx)?;
+    let d: usize = ctx.param_or("band_px", 1)?;
+    by_precision!(ctx, band_in(ctx, &s, d))
 }
 
 /// The scene rendered with its own integrator (timed: `time_s`) and with
