@@ -7,7 +7,7 @@ use crate::voxels::attributes::{quality, AttrForm, Attributes};
 use crate::voxels::octree::Octree;
 use crate::voxels::referee_mesh::{TriangleCheck, VoxelCheck};
 use crate::voxels::voxelise::MeshVoxels;
-use crate::voxels::render::{shade, VoxelHits};
+use crate::voxels::render::{attr_image, shade, VoxelHits};
 
 fn with_3(shape: &[usize]) -> Vec<usize> {
     let mut s = shape.to_vec();
@@ -66,6 +66,24 @@ pub fn put_hits<F: Real>(
     out.tensor("iters", Tensor::from_shape_vec(shape, h.iters)?);
     out.counter("capped", h.capped);
     Ok(())
+}
+
+/// [`put_hits`] with the image shaded from the hit leaves' decoded
+/// attributes when `attrs` is given (leaf found through `attr_index`).
+pub fn put_hits_shaded<F: Real>(
+    out: &mut Outputs,
+    h: VoxelHits<F>,
+    shape: &[usize],
+    depth: u32,
+    attrs: Option<(&Attributes, AttrForm)>,
+    attr_index: impl Fn([u32; 3]) -> Option<u32> + Sync,
+) -> Result<()> {
+    let Some((a, form)) = attrs else {
+        return put_hits(out, h, shape, depth, true);
+    };
+    let img = attr_image(&h, a, form, attr_index);
+    out.tensor("image", Tensor::real3(shape, &img)?);
+    put_hits(out, h, shape, depth, false)
 }
 
 /// The octree's build statistics as metrics and counters.

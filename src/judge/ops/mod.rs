@@ -35,6 +35,7 @@ mod voxels;
 mod voxels_contour;
 mod voxels_dag;
 mod voxels_gpu;
+mod voxels_mesh;
 
 use std::path::{Path, PathBuf};
 
@@ -216,6 +217,7 @@ pub fn table() -> impl Iterator<Item = &'static OpEntry> {
         voxels_dag::OPS,
         voxels_contour::OPS,
         voxels_gpu::OPS,
+        voxels_mesh::OPS,
         selftest::OPS,
     ]
     .into_iter()

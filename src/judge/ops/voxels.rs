@@ -31,7 +31,8 @@ use crate::voxels::cast::{CastParams, CastReal};
 use crate::voxels::contour::fit_all;
 use crate::voxels::dag::{build_dag, Dag};
 use crate::voxels::octree::{build, Octree};
-use crate::voxels::outputs::{build_metrics, put_hits};
+use crate::voxels::attributes::{for_scene, Attributes};
+use crate::voxels::outputs::{build_metrics, put_hits, put_hits_shaded};
 use crate::voxels::raysets::{hard, incoherent, HARD_KINDS};
 use crate::voxels::render::{cast_all, cast_all_contours, cast_all_dag, referee_all, Structure};
 use crate::voxels::shape::Shape;
@@ -194,6 +195,7 @@ fn render_in<F: CastReal>(
     tree: &Octree,
     dag: Option<&Dag>,
     contours: Option<&[u32]>,
+    attrs: Option<&Attributes>,
 ) -> Result<Outputs> {
     let b = batch::<F>(ctx, sc)?;
     let n = b.o.len() as u64;
@@ -225,7 +227,11 @@ fn render_in<F: CastReal>(
         .metric("mrays_per_s", n as f64 / s.max(1e-12) / 1e6);
     out.counter("rays", n)
         .counter("hits", h.hit.iter().map(|&x| x as u64).sum());
-    put_hits(&mut out, h, &b.shape, sc.depth, true)?;
+    let a = attrs.map(|a| (a, sc.attributes));
+    match dag {
+        Some(g) => put_hits_shaded(&mut out, h, &b.shape, sc.depth, a, |v| g.attr_index(v))?,
+        None => put_hits_shaded(&mut out, h, &b.shape, sc.depth, a, |v| tree.attr_index(v))?,
+    }
     if let Some(k) = b.kind {
         out.tensor("kind", Tensor::from_shape_vec(&b.shape, k)?);
     }
@@ -236,10 +242,11 @@ fn render_in<F: CastReal>(
 fn render(ctx: &OpCtx) -> Result<Outputs> {
     let sc = load(ctx)?;
     let tree = build(&sc.shape, sc.depth, &ctx.budget)?;
+    let attrs = for_scene(&sc.shape, &tree, sc.attributes)?;
     if ctx.backend == BackendKind::Gpu {
-        if sc.structure != Structure::Octree || sc.contours {
+        if sc.structure != Structure::Octree || sc.contours || attrs.is_some() {
             return Err(Error::NotSupported(format!(
-                "{}: the GPU cast reads the octree without contours (structure: dag and contours run on the CPU)",
+                "{}: the GPU cast reads the octree without contours or attributes (structure: dag, contours and attributes run on the CPU)",
                 ctx.case_id
             )));
         }
@@ -255,7 +262,7 @@ fn render(ctx: &OpCtx) -> Result<Outputs> {
         None
     };
     let (g, cs) = (dag.as_ref(), contours.as_deref());
-    by_precision!(ctx, render_in(ctx, &sc, &tree, g, cs))
+    by_precision!(ctx, render_in(ctx, &sc, &tree, g, cs, attrs.as_ref()))
 }
 
 pub(super) fn widen<F: Real>(b: &Batch<F>) -> (Vec<[f64; 3]>, Vec<[f64; 3]>) {
