@@ -9,6 +9,7 @@ pub mod camera;
 pub mod pathtrace;
 pub mod rays;
 pub mod transport;
+pub mod transport_refs;
 pub mod volume;
 pub mod volume_hash;
 pub mod voxels;

@@ -6,7 +6,9 @@
 //! 003; SCENES.md "Sparse voxels" fixes voxel indexing and outputs.
 
 pub mod attributes;
+pub mod batch;
 pub mod cast;
+pub mod checks;
 pub mod contour;
 pub mod dag;
 pub mod dxt;
@@ -16,6 +18,7 @@ pub mod octree;
 pub mod outputs;
 pub mod raysets;
 pub mod referee;
+pub mod referee_bounds;
 pub mod referee_dag;
 pub mod referee_mesh;
 pub mod render;

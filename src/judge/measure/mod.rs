@@ -1,6 +1,14 @@
 //! Measuring: wall and CPU seconds of a call. On a shared machine the wall
 //! clock counts time other jobs held the cores; CPU time does not, so rates
 //! per CPU second are the figures to compare.
+//!
+//! Per renderer, the timing harnesses the perf operations wire (repeats,
+//! medians, CPU seconds): `volume.rs`, `pathtrace.rs`, `voxels.rs`.
+
+pub mod pathtrace;
+pub mod transport;
+pub mod volume;
+pub mod voxels;
 
 use std::time::Instant;
 
@@ -25,6 +33,15 @@ pub fn timed<R>(f: impl FnOnce() -> R) -> (R, f64, f64) {
         _ => 0.0,
     };
     (r, wall, cpu)
+}
+
+/// Peak resident set of this process (VmHWM), bytes; 0 off Linux.
+pub fn peak_rss_bytes() -> f64 {
+    let s = std::fs::read_to_string("/proc/self/status").unwrap_or_default();
+    s.lines()
+        .find_map(|l| l.strip_prefix("VmHWM:"))
+        .and_then(|v| v.trim().trim_end_matches("kB").trim().parse::<f64>().ok())
+        .map_or(0.0, |kb| kb * 1024.0)
 }
 
 #[cfg(test)]
