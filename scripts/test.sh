@@ -24,6 +24,17 @@ if command -v python3 >/dev/null 2>&1 && ! python3 -c "import numpy" 2>/dev/null
     python3 -m pip install -q numpy >&2 || echo "numpy not installed: the Python example will be skipped"
 fi
 
+echo "== glmark2-data (the bunny mesh of TESTS/scenes/bunny.yaml, issue 14)"
+if [ ! -f /usr/share/glmark2/models/bunny.obj ]; then
+    sudo=""
+    if [ "$(id -u)" != 0 ] && command -v sudo >/dev/null 2>&1 && sudo -n true 2>/dev/null; then
+        sudo="sudo -n"
+    fi
+    { $sudo env DEBIAN_FRONTEND=noninteractive apt-get update -qq &&
+        $sudo env DEBIAN_FRONTEND=noninteractive apt-get install -y -qq glmark2-data; } >&2 ||
+        echo "glmark2-data not installed: the bunny cases skip (and fail with CI=true)"
+fi
+
 echo "== cargo test --release --workspace"
 cargo test --release --workspace
 

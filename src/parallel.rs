@@ -59,3 +59,9 @@ pub fn par_each<T: Send>(label: &'static str, items: Vec<T>, f: impl Fn(usize, T
     let _span = tracing::debug_span!("par_each", label, n = items.len()).entered();
     items.into_par_iter().enumerate().for_each(|(i, t)| f(i, t));
 }
+
+/// Sorts `v` in parallel (unstable: equal elements are indistinguishable).
+pub fn par_sort<T: Ord + Send>(label: &'static str, v: &mut [T]) {
+    let _span = tracing::debug_span!("par_sort", label, n = v.len()).entered();
+    v.par_sort_unstable();
+}

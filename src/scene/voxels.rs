@@ -3,11 +3,12 @@
 //!
 //! | key | meaning | default |
 //! | --- | --- | --- |
-//! | `shape` | `{type: sphere, radius}` (centre-inside test), `{type: menger, level}` or `{type: boxes, boxes: [{min: [i, j, k], max: [i, j, k]}, ..]}` (inclusive voxel boxes) | required |
+//! | `shape` | `{type: sphere, radius}` (centre-inside test), `{type: menger, level}`, `{type: boxes, boxes: [{min: [i, j, k], max: [i, j, k]}, ..]}` (inclusive voxel boxes) or `{type: mesh, path}` (an .obj or .ply file, relative to the scene file, placed as SCENES.md's bunny and surface-voxelised; an absent file is `not supported` (a skip) unless `CI=true`) | required |
 //! | `depth` | octree depth d: 2^d voxels per axis over [-1, 1]^3, 1..=22 | required |
 //! | `lod` | `{orig_size, dir_size}`: LOD cut when `orig_size + t dir_size` >= voxel size (world units) | off |
 //! | `max_iter` | cast iteration cap per ray | max(2^16, 16 * 2^depth) |
 //! | `contours` | `true`: intersect each surface voxel's contour slab (sphere only; octree only); SCENES.md outputs are defined without | `false` |
+//! | `attributes` | `none` (shade by the entered face's axis), `plain` or `dxt`: shade `image` with the hit leaf's decoded colour and normal in that stored form (sphere and mesh shapes; `voxels::attributes`) | `none` |
 //! | `structure` | `octree` (ESVO, relative addressing) or `dag` (identical subtrees merged, absolute addressing; same outputs) | `octree` |
 //! | view keys | `camera`, `width`, `height`, `roi`, `near`, `far`, ... | see `scene/rays.rs` |
 
@@ -15,8 +16,14 @@ use serde::Deserialize;
 
 use super::rays::{ViewSpec, VIEW_KEYS};
 use super::SceneDoc;
+use std::sync::Arc;
+
+use crate::budget::MemBudget;
 use crate::error::{Error, Result};
+use crate::voxels::attributes::AttrForm;
 use crate::voxels::cast::{default_max_iter, Lod};
+use crate::voxels::mesh::Mesh;
+use crate::voxels::voxelise::voxelise;
 use crate::voxels::render::Structure;
 use crate::voxels::shape::{Shape, VoxelBox};
 
@@ -34,6 +41,7 @@ pub enum ShapeSpec {
     Sphere { radius: f64 },
     Menger { level: u32 },
     Boxes { boxes: Vec<BoxSpec> },
+    Mesh { path: String },
 }
 
 #[derive(Clone, Copy, Debug, Deserialize, PartialEq)]
@@ -58,6 +66,8 @@ pub struct VoxelsRest {
     pub structure: Structure,
     #[serde(default)]
     pub contours: bool,
+    #[serde(default)]
+    pub attributes: AttrForm,
 }
 
 /// A parsed, validated voxel scene.
@@ -70,6 +80,32 @@ pub struct VoxelScene {
     pub max_iter: u32,
     pub structure: Structure,
     pub contours: bool,
+    pub attributes: AttrForm,
+}
+
+/// Loads, places and voxelises the mesh at `path` (relative to the scene's folder).
+fn mesh_shape(doc: &SceneDoc, path: &str, depth: u32) -> Result<Shape> {
+    let at = format!("{} key `shape.path`", doc.at());
+    let full = doc
+        .path
+        .parent()
+        .map_or_else(|| path.into(), |d| d.join(path));
+    if !full.exists() {
+        let why = format!(
+            "{at}: mesh {} is absent (the bunny comes with the Debian package glmark2-data)",
+            full.display()
+        );
+        if std::env::var("CI").is_ok_and(|v| v == "true") {
+            return Err(Error::invalid(at, why));
+        }
+        return Err(Error::NotSupported(why));
+    }
+    let mesh = Mesh::load(&full)?.placed()?;
+    Ok(Shape::Mesh(Arc::new(voxelise(
+        mesh,
+        depth,
+        &MemBudget::from_machine(),
+    )?)))
 }
 
 /// Parses and validates a `renderer: voxels` scene.
@@ -88,6 +124,15 @@ pub fn parse(doc: &SceneDoc) -> Result<VoxelScene> {
                 })
                 .collect(),
         },
+        ShapeSpec::Mesh { ref path } => {
+            if rest.depth == 0 || rest.depth > crate::voxels::shape::MAX_DEPTH {
+                return Err(Error::invalid(
+                    format!("{at} key `depth`"),
+                    format!("{} is not in 1..=22", rest.depth),
+                ));
+            }
+            mesh_shape(doc, path, rest.depth)?
+        }
     };
     shape
         .validate(rest.depth)
@@ -118,6 +163,14 @@ pub fn parse(doc: &SceneDoc) -> Result<VoxelScene> {
             "must be at least 1",
         ));
     }
+    if rest.attributes != AttrForm::None
+        && !matches!(shape, Shape::Sphere { .. } | Shape::Mesh(_))
+    {
+        return Err(Error::invalid(
+            format!("{at} key `attributes`"),
+            "colour and normal attributes are defined for sphere and mesh shapes",
+        ));
+    }
     if rest.contours && rest.structure == Structure::Dag {
         return Err(Error::invalid(
             format!("{at} key `contours`"),
@@ -133,6 +186,7 @@ pub fn parse(doc: &SceneDoc) -> Result<VoxelScene> {
         max_iter,
         structure: rest.structure,
         contours: rest.contours,
+        attributes: rest.attributes,
     })
 }
 

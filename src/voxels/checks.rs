@@ -1,24 +1,30 @@
 //! Harnesses that run the casts against the referees: the contour error
 //! against the analytic sphere (`referee_bounds::ball_entry`) and the GPU
 //! cast's differences from the CPU cast judged by the exact DDA
-//! (`referee::referee`). The judge's voxels ops wire scenes to these.
+//! (`referee::referee`); plain and DXT attributes against the scene's
+//! normals (`attributes::quality`); the mesh voxelisation against the
+//! separating-axis referee (`referee_mesh`). The judge's voxels ops wire
+//! scenes to these.
 
 use crate::error::Result;
 use crate::gpu::voxels::GpuCast;
 use crate::rays::Rays;
 use crate::tensor::{Outputs, Tensor};
 
+use super::attributes::{leaf_normals, Attributes};
 use super::batch::Batch;
 use super::cast::{CastParams, CastReal};
 use super::contour::decode;
 use super::gpu::hits_from_gpu;
 use super::octree::Octree;
-use super::outputs::put_hits;
+use super::outputs::{attr_metrics, build_metrics, mesh_metrics, put_hits};
 use super::referee::referee;
 use super::referee_bounds::ball_entry;
+use super::referee_mesh::{check_triangles, check_voxels};
 use super::render::{cast_all, cast_all_contours, VoxelHits};
 use super::shape::Shape;
 use super::through::Through;
+use super::voxelise::MeshVoxels;
 
 /// Max and 99th percentile (nearest rank) of `v` (0, 0 when empty).
 fn max_p99(mut v: Vec<f64>) -> (f64, f64) {
@@ -196,4 +202,27 @@ fn excused(
         }
     }
     (excused, differ.len())
+}
+
+/// Plain and DXT attributes of `tree`'s leaves built from `shape`'s normals
+/// and judged against them (`outputs::attr_metrics`), with the build's
+/// metrics.
+pub fn attribute_quality(shape: &Shape, tree: &Octree) -> Result<Outputs> {
+    let ns = leaf_normals(shape, tree)?;
+    let mut out = Outputs::default();
+    attr_metrics(&mut out, &Attributes::build(&ns), &ns, tree);
+    build_metrics(&mut out, tree);
+    Ok(out)
+}
+
+/// The separating-axis referee over every `strides.0`-th triangle and the
+/// solid voxels of every `strides.1`-th leaf, skipping gaps within `margin`
+/// (`outputs::mesh_metrics`), with the build's metrics.
+pub fn mesh_referee(m: &MeshVoxels, tree: &Octree, strides: (usize, usize), margin: f64) -> Outputs {
+    let tc = check_triangles(&m.mesh, tree, strides.0, margin);
+    let vc = check_voxels(&m.mesh, tree, strides.1, margin);
+    let mut out = Outputs::default();
+    mesh_metrics(&mut out, m, &tc, &vc);
+    build_metrics(&mut out, tree);
+    out
 }

@@ -5,12 +5,15 @@
 //! names their tensors. Seeds 001 and
 //! 003; SCENES.md "Sparse voxels" fixes voxel indexing and outputs.
 
+pub mod attributes;
 pub mod batch;
 pub mod cast;
 pub mod checks;
 pub mod contour;
 pub mod dag;
+pub mod dxt;
 pub mod gpu;
+pub mod mesh;
 pub mod octree;
 pub mod outputs;
 pub mod packet;
@@ -18,9 +21,11 @@ pub mod raysets;
 pub mod referee;
 pub mod referee_bounds;
 pub mod referee_dag;
+pub mod referee_mesh;
 pub mod render;
 pub mod shape;
 pub mod through;
+pub mod voxelise;
 
 #[cfg(test)]
 mod tests {

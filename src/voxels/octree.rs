@@ -427,6 +427,26 @@ impl Octree {
         }
         true
     }
+
+    /// Attribute index of the leaf containing finest voxel `v` (`None` when
+    /// `v` is empty): the walk of [`Octree::solid_at`] reading `attr_base`.
+    pub fn attr_index(&self, v: [u32; 3]) -> Option<u32> {
+        let mut slot = 0usize;
+        for level in (0..self.depth).rev() {
+            let c = (v[0] >> level & 1) | (v[1] >> level & 1) << 1 | (v[2] >> level & 1) << 2;
+            let d = self.descriptor(slot);
+            if d.valid >> c & 1 == 0 {
+                return None;
+            }
+            let below = (1u32 << c) - 1;
+            if d.nonleaf >> c & 1 == 0 {
+                let leaf = (d.valid & !d.nonleaf) as u32;
+                return Some(d.attr_base + (leaf & below).count_ones());
+            }
+            slot = self.first_child(slot) + (d.nonleaf as u32 & below).count_ones() as usize;
+        }
+        None
+    }
 }
 
 #[cfg(test)]
@@ -523,19 +543,11 @@ mod tests {
             let size = 1u32 << (5 - level);
             solid += (size as u128).pow(3);
             assert!(t.solid_at(lo) && s.solid(5, lo), "{i} {lo:?}");
-            // The attribute index the point walk finds is this leaf's.
-            let mut slot = 0usize;
-            for l in (0..5).rev() {
-                let c = (lo[0] >> l & 1) | (lo[1] >> l & 1) << 1 | (lo[2] >> l & 1) << 2;
-                let d = t.descriptor(slot);
-                if d.nonleaf >> c & 1 == 0 {
-                    let leaf = (d.valid & !d.nonleaf) as u32;
-                    assert_eq!(d.attr_base + (leaf & ((1 << c) - 1)).count_ones(), i as u32);
-                    break;
-                }
-                slot =
-                    t.first_child(slot) + (d.nonleaf as u32 & ((1 << c) - 1)).count_ones() as usize;
-            }
+            // The attribute index the point walk finds is this leaf's, at
+            // both corners of the leaf's cube.
+            let hi = lo.map(|x| x + size - 1);
+            assert_eq!(t.attr_index(lo), Some(i as u32));
+            assert_eq!(t.attr_index(hi), Some(i as u32));
         }
         assert_eq!(solid, t.stats.solid_voxels);
     }

@@ -3,10 +3,13 @@
 use crate::error::Result;
 use crate::real::Real;
 use crate::tensor::{Outputs, Tensor};
+use crate::voxels::attributes::{quality, AttrForm, Attributes};
 use crate::voxels::batch::Batch;
 use crate::voxels::dag::Dag;
 use crate::voxels::octree::Octree;
+use crate::voxels::referee_mesh::{TriangleCheck, VoxelCheck};
 use crate::voxels::render::{shade, RefereeHits, VoxelHits};
+use crate::voxels::voxelise::MeshVoxels;
 
 fn with_3(shape: &[usize]) -> Vec<usize> {
     let mut s = shape.to_vec();
@@ -87,6 +90,62 @@ pub fn build_metrics(out: &mut Outputs, tree: &Octree) {
     out.counter("leaves", s.leaves);
 }
 
+/// Attribute storage and quality: for `plain` and `dxt`, `{form}_colour_psnr_db`,
+/// `{form}_colour_max_abs`, `{form}_normal_{mean,p99,max}_deg` (metrics and
+/// scalar tensors), `{form}_bytes_per_voxel` (attributes alone) and
+/// `{form}_total_bytes_per_voxel` (with the octree's nodes); counters
+/// `attr_leaves`, `zero_normals`.
+pub fn attr_metrics(out: &mut Outputs, a: &Attributes, ns: &[[f64; 3]], tree: &Octree) {
+    let voxels = tree.stats.solid_voxels.max(1) as f64;
+    for (name, form) in [("plain", AttrForm::Plain), ("dxt", AttrForm::Dxt)] {
+        let q = quality(a, form, ns);
+        let bytes = a.bytes(form) as f64;
+        for (k, v) in [
+            ("colour_psnr_db", q.colour_psnr_db),
+            ("colour_max_abs", q.colour_max_abs),
+            ("normal_mean_deg", q.normal_mean_deg),
+            ("normal_p99_deg", q.normal_p99_deg),
+            ("normal_max_deg", q.normal_max_deg),
+            ("bytes_per_voxel", bytes / voxels),
+            (
+                "total_bytes_per_voxel",
+                (bytes + tree.stats.bytes as f64) / voxels,
+            ),
+        ] {
+            let key = format!("{name}_{k}");
+            out.metric(&key, v);
+            out.tensor(&key, Tensor::scalar(v));
+        }
+        out.counter("zero_normals", q.zero_normals);
+    }
+    out.counter("attr_leaves", a.leaves as u64);
+}
+
+/// The mesh referee's findings and the voxelisation's size: counters
+/// `triangles_checked`, `overlapped`, `missing`, `triangle_ties`,
+/// `voxels_checked`, `untouched`, `voxel_ties`, `mesh_voxels`,
+/// `degenerate`; `missing` and `untouched` also as scalar tensors; metrics
+/// `voxelise_s`, `mesh_voxel_bytes` (codes and normal sums).
+pub fn mesh_metrics(out: &mut Outputs, m: &MeshVoxels, t: &TriangleCheck, v: &VoxelCheck) {
+    out.counter("triangles_checked", t.triangles)
+        .counter("overlapped", t.overlapped)
+        .counter("missing", t.missing)
+        .counter("triangle_ties", t.ties)
+        .counter("voxels_checked", v.voxels)
+        .counter("untouched", v.untouched)
+        .counter("voxel_ties", v.ties)
+        .counter("mesh_voxels", m.codes.len() as u64)
+        .counter("triangles", m.mesh.tris.len() as u64)
+        .counter("degenerate", m.degenerate);
+    out.tensor("missing", Tensor::scalar(t.missing as f64));
+    out.tensor("untouched", Tensor::scalar(v.untouched as f64));
+    out.tensor("overlapped", Tensor::scalar(t.overlapped as f64));
+    out.metric("voxelise_s", m.voxelise_s).metric(
+        "mesh_voxel_bytes",
+        (m.codes.len() * (8 + 12)) as f64,
+    );
+}
+
 /// The DAG's counters and build time, beside an octree's.
 pub fn dag_metrics(out: &mut Outputs, g: &Dag) {
     let s = &g.stats;
@@ -115,11 +174,13 @@ impl RefereeHits {
 
 impl<F: Real> Batch<F> {
     /// A cast of this batch as SCENES.md outputs (as [`put_hits`], with the
-    /// image; `kind` for hard rays; `rays` (N, 9) when `dump`), metrics
-    /// `cast_s` (= `secs`), `mrays_per_s`, counters `rays`, `hits`.
+    /// image: `image` when given (attribute shading, `render::attr_image`),
+    /// else shaded from the normals; `kind` for hard rays; `rays` (N, 9) when
+    /// `dump`), metrics `cast_s` (= `secs`), `mrays_per_s`, counters `rays`,
+    /// `hits`.
     pub fn cast_outputs(
         self,
-        h: VoxelHits<F>,
+        (h, image): (VoxelHits<F>, Option<Vec<[F; 3]>>),
         (secs, hits): (f64, u64),
         depth: u32,
         dump: bool,
@@ -132,7 +193,10 @@ impl<F: Real> Batch<F> {
         out.metric("cast_s", secs)
             .metric("mrays_per_s", n as f64 / secs.max(1e-12) / 1e6);
         out.counter("rays", n).counter("hits", hits);
-        put_hits(out, h, &self.shape, depth, true)?;
+        if let Some(img) = &image {
+            out.tensor("image", Tensor::real3(&self.shape, img)?);
+        }
+        put_hits(out, h, &self.shape, depth, image.is_none())?;
         if let Some(k) = self.kind {
             out.tensor("kind", Tensor::from_shape_vec(&self.shape, k)?);
         }

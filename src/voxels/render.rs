@@ -7,11 +7,13 @@
 //! z faces (0.45, 0.60, 0.90)) times `0.35 + 0.65 max(0, n . L)`,
 //! L = normalize(0.4, 0.9, 0.2), n the entered face's normal; a ray that
 //! starts inside solid gets grey 0.5; misses get the background
-//! (0.05, 0.05, 0.08).
+//! (0.05, 0.05, 0.08). With attributes ([`shade_attr`]) the albedo is the
+//! hit leaf's decoded colour and n its decoded normal instead.
 
 use crate::parallel::par_collect;
 use crate::real::Real;
 
+use super::attributes::{AttrForm, Attributes};
 use super::cast::{cast, cast_contours, cast_dag, CastHit, CastParams, CastReal};
 use super::dag::Dag;
 use super::octree::Octree;
@@ -55,6 +57,38 @@ pub fn shade<F: Real>(hit: bool, normal: [F; 3]) -> [F; 3] {
     let ln = (l[0] * l[0] + l[1] * l[1] + l[2] * l[2]).sqrt();
     let k = 0.35 + 0.65 * ((n[0] * l[0] + n[1] * l[1] + n[2] * l[2]) / ln).max(0.0);
     ALBEDO[axis].map(|a| F::of(a * k))
+}
+
+/// The shaded colour of a hit leaf with decoded `colour` and unit `normal`
+/// (a zero normal gets the ambient term only).
+pub fn shade_attr<F: Real>(colour: [f32; 3], normal: [f32; 3]) -> [F; 3] {
+    let l = LIGHT;
+    let ln = (l[0] * l[0] + l[1] * l[1] + l[2] * l[2]).sqrt();
+    let nl: f64 = (0..3).map(|k| normal[k] as f64 * l[k]).sum::<f64>() / ln;
+    let k = 0.35 + 0.65 * nl.max(0.0);
+    colour.map(|c| F::of(c as f64 * k))
+}
+
+/// The image of a cast with attributes: each hit's leaf (found from its
+/// voxel by `attr_index`) decoded in form `form` and shaded by
+/// [`shade_attr`]; misses and inside starts as [`shade`].
+pub fn attr_image<F: Real>(
+    h: &VoxelHits<F>,
+    attrs: &Attributes,
+    form: AttrForm,
+    attr_index: impl Fn([u32; 3]) -> Option<u32> + Sync,
+) -> Vec<[F; 3]> {
+    par_collect("voxels.attr_image", h.hit.len(), |i| {
+        let inside = h.normal[i].iter().all(|x| x.f64() == 0.0);
+        if h.hit[i] == 0 || inside {
+            return shade(h.hit[i] == 1, h.normal[i]);
+        }
+        let v = h.leaf[i].map(|x| x as u32);
+        match attr_index(v).and_then(|a| attrs.decode(form, a as usize)) {
+            Some((c, n)) => shade_attr(c, n),
+            None => shade(true, h.normal[i]),
+        }
+    })
 }
 
 /// Which structure a scene is cast through (scene key `structure`).
@@ -168,5 +202,15 @@ mod tests {
         let down = shade::<f64>(true, [0.0, -1.0, 0.0]);
         assert!(up[0] > down[0] && (down[0] - 0.35 * 0.85).abs() < 1e-12);
         assert_eq!(shade::<f32>(true, [0.0; 3]), [0.5; 3]);
+    }
+
+    #[test]
+    fn attribute_shading_scales_the_decoded_colour_by_the_decoded_normal() {
+        let l = LIGHT;
+        let ln = (l[0] * l[0] + l[1] * l[1] + l[2] * l[2]).sqrt();
+        let lit = shade_attr::<f64>([1.0, 0.5, 0.0], l.map(|x| (x / ln) as f32));
+        assert!((lit[0] - 1.0).abs() < 1e-6 && (lit[1] - 0.5).abs() < 1e-6);
+        let away = shade_attr::<f64>([1.0, 0.5, 0.0], [0.0, -1.0, 0.0]);
+        assert_eq!(away, [0.35, 0.175, 0.0]);
     }
 }

@@ -8,7 +8,11 @@
 //! referee both evaluate it, the referee per voxel, the build only at the
 //! finest level of boxes that [`Shape::classify`] cannot decide.
 
+use std::sync::Arc;
+
 use crate::error::{Error, Result};
+
+use super::voxelise::MeshVoxels;
 
 /// Largest octree depth: voxel corners are exact in the cast's f32 octree
 /// coordinates `[1, 2)` (23 mantissa bits) only up to depth 22.
@@ -35,6 +39,9 @@ pub enum Shape {
     Menger { level: u32 },
     /// The union of voxel boxes (points, lines, slabs): sparse content at any depth.
     Boxes { boxes: Vec<VoxelBox> },
+    /// A triangle mesh's conservative surface voxelisation at its depth
+    /// ([`super::voxelise`]): solid iff some triangle meets the closed box.
+    Mesh(Arc<MeshVoxels>),
 }
 
 /// What a cube of voxels holds.
@@ -87,6 +94,14 @@ impl Shape {
                     ));
                 }
             }
+            Shape::Mesh(m) => {
+                if m.depth != depth {
+                    return Err(Error::invalid(
+                        "depth",
+                        format!("the mesh was voxelised at depth {}, not {depth}", m.depth),
+                    ));
+                }
+            }
             Shape::Boxes { boxes } => {
                 for (i, b) in boxes.iter().enumerate() {
                     if (0..3).any(|a| b.min[a] > b.max[a] || b.max[a] as u64 >= n) {
@@ -134,17 +149,28 @@ impl Shape {
             Shape::Boxes { boxes } => boxes
                 .iter()
                 .any(|b| (0..3).all(|a| b.min[a] <= v[a] && v[a] <= b.max[a])),
+            Shape::Mesh(m) => m.solid(v),
         }
     }
 
     /// Classifies the cube of `size` voxels per axis whose low corner is
-    /// voxel `lo`. Exact (never Mixed for a uniform cube) for the sphere;
+    /// voxel `lo`. Exact (never Mixed for a uniform cube) for the sphere and meshes;
     /// Full exact and Empty conservative for the sponge and boxes.
     pub fn classify(&self, depth: u32, lo: [u32; 3], size: u32) -> Class {
         let n = 1u64 << depth;
         let lo64 = lo.map(|x| x as u64);
         let hi64 = lo64.map(|x| x + size as u64 - 1);
         match self {
+            Shape::Mesh(m) => {
+                let k = m.range(lo, size).len() as u64;
+                if k == 0 {
+                    Class::Empty
+                } else if k == (size as u64).pow(3) {
+                    Class::Full
+                } else {
+                    Class::Mixed
+                }
+            }
             Shape::Sphere { radius } => {
                 let (mut smin, mut smax) = (0u64, 0u64);
                 for a in 0..3 {

@@ -36,6 +36,15 @@ pub fn timed<R>(f: impl FnOnce() -> R) -> (R, f64, f64) {
     (r, wall, cpu)
 }
 
+/// Peak resident set of this process (VmHWM), bytes; 0 off Linux.
+pub fn peak_rss_bytes() -> f64 {
+    let s = std::fs::read_to_string("/proc/self/status").unwrap_or_default();
+    s.lines()
+        .find_map(|l| l.strip_prefix("VmHWM:"))
+        .and_then(|v| v.trim().trim_end_matches("kB").trim().parse::<f64>().ok())
+        .map_or(0.0, |kb| kb * 1024.0)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -19,6 +19,10 @@
 //! `voxels::checks::excused`; `ulp_margin` defaults to 2^-22, one f32 ulp
 //! of the octree's [1, 2) coordinates); counters `differ`, `excused`,
 //! `unexcused`; `identical_frac` (scalar tensor and metric).
+//!
+//! Scene key `attributes: plain | dxt` shades `voxels.render`'s image from
+//! the hit leaves' decoded colours and normals (CPU only);
+//! `voxels.attributes` and `voxels.mesh_referee` wire `voxels::checks`.
 
 use super::{BackendKind, OpCtx};
 use crate::budget::bytes_for;
@@ -26,14 +30,15 @@ use crate::camera::Camera;
 use crate::error::{Error, Result};
 use crate::gpu::voxels::GpuCast;
 use crate::gpu::GpuContext;
-use crate::judge::measure::{timed, voxels as measure};
+use crate::judge::measure::{peak_rss_bytes, timed, voxels as measure};
 use crate::rays::{RayGen, Rays};
 use crate::real::Real;
 use crate::scene::voxels::VoxelScene;
 use crate::tensor::{Outputs, Tensor};
+use crate::voxels::attributes::{for_scene, AttrForm};
 use crate::voxels::batch::Batch;
 use crate::voxels::cast::{CastParams, CastReal};
-use crate::voxels::checks::contour_error;
+use crate::voxels::checks::{attribute_quality, contour_error, mesh_referee};
 use crate::voxels::contour::fit_all;
 use crate::voxels::dag::{build_dag, Dag};
 use crate::voxels::gpu::{cast_batch, cast_camera, hits_from_gpu};
@@ -41,7 +46,7 @@ use crate::voxels::octree::{build, Octree};
 use crate::voxels::outputs::{build_metrics, dag_metrics};
 use crate::voxels::referee_bounds::sphere_bounds;
 use crate::voxels::referee_dag::distinct_nodes_per_level;
-use crate::voxels::render::{referee_all, Structure};
+use crate::voxels::render::{attr_image, referee_all, Structure};
 use crate::voxels::shape::Shape;
 use crate::voxels::through::{CastPath, Through};
 
@@ -64,6 +69,10 @@ ops! {
         "GPU vs CPU f32 voxel cast on the same rays: both outputs, excused (referee ties / one-ulp near ties where they differ)";
     "voxels.gpu_bench" GpuF32 gpu_bench ["count", "size", "seed"]
         "CPU per-ray, CPU packet and GPU casts of octree and DAG in one run, coherent (size^2 camera) and incoherent (count): Mrays/CPU-s, GPU Mrays/s, packet speedup, mean iterations, node bytes per ray";
+    "voxels.attributes" Cpu attributes_op []
+        "plain and DXT per-leaf colour/normal: {plain,dxt}_colour_psnr_db, _normal_{mean,p99,max}_deg, _bytes_per_voxel";
+    "voxels.mesh_referee" Cpu mesh_referee_op ["tri_stride", "leaf_stride", "margin"]
+        "separating-axis referee of the mesh voxelisation: missing, untouched, ties; voxelise_s, build_s, peak_rss_bytes";
 }
 
 fn load(ctx: &OpCtx) -> Result<VoxelScene> {
@@ -106,7 +115,13 @@ fn batch<F: Real>(ctx: &OpCtx, sc: &VoxelScene) -> Result<Batch<F>> {
     }
 }
 
-fn render_in<F: CastReal>(ctx: &OpCtx, sc: &VoxelScene, th: Through) -> Result<Outputs> {
+fn render_in<F: CastReal>(
+    ctx: &OpCtx,
+    sc: &VoxelScene,
+    th: Through,
+    (tree, dag): (&Octree, Option<&Dag>),
+) -> Result<Outputs> {
+    let attrs = for_scene(&sc.shape, tree, sc.attributes)?;
     let b = batch::<F>(ctx, sc)?;
     let bytes = bytes_for(b.o.len() as u64, 12 * std::mem::size_of::<F>() as u64 + 32);
     ctx.budget.check("voxels.render outputs", bytes)?;
@@ -116,7 +131,11 @@ fn render_in<F: CastReal>(ctx: &OpCtx, sc: &VoxelScene, th: Through) -> Result<O
     let h = h?;
     let mut out = Outputs::default();
     let hits = h.hit.iter().map(|&x| x as u64).sum();
-    b.cast_outputs(h, (secs, hits), sc.depth, ctx.dump, &mut out)?;
+    let img = attrs.map(|a| match dag {
+        Some(g) => attr_image(&h, &a, sc.attributes, |v| g.attr_index(v)),
+        None => attr_image(&h, &a, sc.attributes, |v| tree.attr_index(v)),
+    });
+    b.cast_outputs((h, img), (secs, hits), sc.depth, ctx.dump, &mut out)?;
     Ok(out)
 }
 
@@ -135,8 +154,12 @@ fn render(ctx: &OpCtx) -> Result<Outputs> {
     let (dag, cs) = parts(ctx, &sc, &tree)?;
     let th = Through::pick(&tree, dag.as_ref(), cs.as_deref());
     let mut out = if ctx.backend == BackendKind::Cpu {
-        by_precision!(ctx, render_in(ctx, &sc, th))?
+        by_precision!(ctx, render_in(ctx, &sc, th, (&tree, dag.as_ref())))?
     } else {
+        if sc.attributes != AttrForm::None {
+            let why = "attributes are decoded on the CPU only (no WGSL twin of the DXT decode yet)";
+            return Err(Error::NotSupported(format!("{}: {why}", ctx.case_id)));
+        }
         let (r, wall, _) = timed(|| gpu_run(ctx, &sc, th, ctx.dump));
         let (cast, b, _) = r?;
         let mut out = Outputs::default();
@@ -144,7 +167,7 @@ fn render(ctx: &OpCtx) -> Result<Outputs> {
             .counter("kernel_max_iter", cast.max_iter as u64);
         let hits = cast.hits.iter().filter(|h| h.hit()).count() as u64;
         let h = hits_from_gpu(&cast.hits);
-        b.cast_outputs(h, (cast.gpu_s, hits), sc.depth, ctx.dump, &mut out)?;
+        b.cast_outputs((h, None), (cast.gpu_s, hits), sc.depth, ctx.dump, &mut out)?;
         out
     };
     if let Some(g) = &dag {
@@ -380,5 +403,23 @@ fn gpu_bench(ctx: &OpCtx) -> Result<Outputs> {
         &ctx.budget,
         &mut out,
     )?;
+    Ok(out)
+}
+
+fn attributes_op(ctx: &OpCtx) -> Result<Outputs> {
+    let sc = load(ctx)?;
+    attribute_quality(&sc.shape, &build(&sc.shape, sc.depth, &ctx.budget)?)
+}
+
+fn mesh_referee_op(ctx: &OpCtx) -> Result<Outputs> {
+    let sc = load(ctx)?;
+    let Shape::Mesh(m) = &sc.shape else {
+        let why = "voxels.mesh_referee needs a `shape: {type: mesh}` scene";
+        return Err(Error::invalid(ctx.scene()?.at(), why));
+    };
+    let tree = build(&sc.shape, sc.depth, &ctx.budget)?;
+    let strides = (ctx.param_or("tri_stride", 1)?, ctx.param_or("leaf_stride", 1)?);
+    let mut out = mesh_referee(m, &tree, strides, ctx.param_or("margin", 1e-9)?);
+    out.metric("peak_rss_bytes", peak_rss_bytes());
     Ok(out)
 }
