@@ -16,7 +16,10 @@
 //! | `runner.rs` | the run: workers, time limits, scoreboard, summary |
 //! | `scoreboard.rs`, `junit.rs`, `artifacts.rs` | what a run writes |
 //! | `measure.rs` | wall and CPU seconds |
+//! | `progress.rs` | progress bars on a terminal only |
+//! | `partition.rs`, `merge.rs` | sharded runs (`--partition K/N`) and `hpjudge merge` |
 //! | `plot.rs` | every plot the judge draws |
+//! | `report/` | `hpjudge report`: the run as one static HTML page |
 //!
 //! Statistics (Šidák, KS, chi-square, medians, slopes) are `crate::stats`,
 //! named here as `stats` for the assertions.
@@ -31,12 +34,16 @@ pub mod junit;
 pub mod load;
 pub mod manifest;
 pub mod measure;
+pub mod merge;
 pub mod ops;
 pub mod outlock;
+pub mod partition;
 pub mod perf;
 pub mod perf_run;
 pub mod plot;
+pub mod progress;
 pub mod render;
+pub mod report;
 pub mod runner;
 pub mod scoreboard;
 pub mod thresholds;
