@@ -13,7 +13,7 @@ use hotpath::error::Error;
 use hotpath::judge::artifacts::{write_png, write_tensor};
 use hotpath::judge::junit::to_junit;
 use hotpath::judge::partition::{parse_partition, Partition};
-use hotpath::judge::{merge, plot, report};
+use hotpath::judge::{frames, merge, plot, progress, report};
 use hotpath::judge::load::JudgeInputError;
 use hotpath::judge::manifest::Manifest;
 use hotpath::judge::ops::{self, BackendKind};
@@ -165,6 +165,9 @@ struct RenderArgs {
     /// dL/d rgb (H, W, 3) for renderers with gradients.
     #[arg(long)]
     grad_from: Option<PathBuf>,
+    /// Render every frame of the scene's NeRF camera file (`camera: {type: nerf}`) into OUT/frame_IIII/.
+    #[arg(long)]
+    all_frames: bool,
     #[command(flatten)]
     common: Common,
 }
@@ -405,7 +408,7 @@ fn cmd_run(a: RunArgs) -> anyhow::Result<Outcome> {
 /// prints the files written, metrics on stderr.
 fn cmd_render(a: &RenderArgs) -> anyhow::Result<Outcome> {
     init_threads(a.common.threads);
-    let outputs = render::render(&RenderRequest {
+    let req = RenderRequest {
         scene: &a.scene,
         backend: a.backend.into(),
         precision: a.precision.into(),
@@ -414,9 +417,18 @@ fn cmd_render(a: &RenderArgs) -> anyhow::Result<Outcome> {
         grad_from: a.grad_from.as_deref(),
         seed: a.common.seed,
         budget: budget(&a.common),
-    })?;
+    };
     let out = &a.out;
     std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
+    if a.all_frames {
+        let n = frames::render_all(&req, out, |p| println!("{}", p.display()))?;
+        eprintln!("{n} frames rendered");
+        return Ok(Outcome::Ok);
+    }
+    let spinner = progress::spinner(&format!("rendering {}", a.scene.display()), false);
+    let outputs = render::render(&req);
+    spinner.finish_and_clear();
+    let outputs = outputs?;
     for (n, t) in &outputs.tensors {
         for p in write_tensor(out, n, t)? {
             println!("{}", p.display());

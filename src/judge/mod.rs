@@ -8,6 +8,7 @@
 //! | `perf.rs` | perf scenarios, noise-aware `compare` |
 //! | `perf_run.rs` | `hpjudge perf`: scenarios in workers, perf.json |
 //! | `render.rs` | `hpjudge render`: one scene, outside a manifest |
+//! | `frames.rs` | `hpjudge render --all-frames`: every frame of a NeRF camera file |
 //! | `asserts.rs` | the closed set of assertions and their checks |
 //! | `ops/` | the table of operations cases name |
 //! | `worker.rs` | one case on one backend, in a child process |
@@ -27,6 +28,7 @@
 pub mod artifacts;
 pub mod asserts;
 pub mod env;
+pub mod frames;
 #[cfg(test)]
 mod fuzz_tests;
 pub mod job;

@@ -25,7 +25,7 @@ use super::load::JudgeInputError;
 use super::merge::read_board;
 use super::ops::BackendKind;
 use super::runner::shell_quote;
-use super::scoreboard::{BackendResult, CaseEntry, Scoreboard};
+use super::scoreboard::{BackendResult, CaseEntry, Scoreboard, Verdict};
 use page::{esc, kv_table, num};
 
 /// The renderer of an op (`volume.forward` -> `volume`).
@@ -144,7 +144,8 @@ fn row(out: &Path, b: &Scoreboard, c: &CaseEntry, r: &BackendResult) -> String {
     format!(
         "<tbody class=\"result\" data-case=\"{id}\" data-verdict=\"{v}\" data-renderer=\"{ren}\" data-backend=\"{be}\">\
          <tr><td class=\"v-{v}\">{v}{exp}</td><td><code>{id}</code></td><td>{op}</td><td>{be}</td><td class=\"num\">{t:.2}</td><td>{note}</td></tr>\
-         <tr><td colspan=\"6\"><details><summary>detail</summary>{detail}</details></td></tr></tbody>",
+         <tr><td colspan=\"6\"><details{open}><summary>detail</summary>{detail}</details></td></tr></tbody>",
+        open = if matches!(r.verdict, Verdict::Pass | Verdict::Skip) { "" } else { " open" },
         id = esc(&c.id),
         ren = esc(renderer(&c.op)),
         be = r.backend.name(),
