@@ -171,6 +171,26 @@ pub fn load_chart(path: &std::path::Path) -> std::result::Result<Chart, JudgeInp
     Ok(super::load::load_yaml_typed::<Chart>(path)?.0)
 }
 
+/// The legend's corner: the quarter of the plot area holding the fewest
+/// points (upper right on a tie), so the legend covers as little as it can.
+pub fn legend_corner(pts: &[&(f64, f64)], x: (f64, f64), y: (f64, f64)) -> SeriesLabelPosition {
+    let (mx, my) = (0.5 * (x.0 + x.1), 0.5 * (y.0 + y.1));
+    let count = |right: bool, upper: bool| {
+        pts.iter()
+            .filter(|p| (p.0 >= mx) == right && (p.1 >= my) == upper)
+            .count()
+    };
+    [
+        (count(true, true), SeriesLabelPosition::UpperRight),
+        (count(false, true), SeriesLabelPosition::UpperLeft),
+        (count(false, false), SeriesLabelPosition::LowerLeft),
+        (count(true, false), SeriesLabelPosition::LowerRight),
+    ]
+    .into_iter()
+    .min_by_key(|c| c.0)
+    .map_or(SeriesLabelPosition::UpperRight, |c| c.1)
+}
+
 /// How many tick labels to ask plotters for: on a log axis one per decade
 /// (so ticks fall on decades: plotters picks round steps of the log), else 8.
 pub fn tick_count(lo: f64, hi: f64, log: bool) -> usize {
@@ -280,7 +300,7 @@ fn draw<DB: DrawingBackend>(root: &DrawingArea<DB, Shift>, chart: &Chart) -> Res
             .label_font((FONT_NAME, 13))
             .background_style(WHITE.mix(0.85))
             .border_style(BLACK)
-            .position(SeriesLabelPosition::UpperRight)
+            .position(legend_corner(&all, (x0, x1), (y0, y1)))
             .draw()
             .map_err(&e)?;
     }
@@ -414,6 +434,14 @@ mod tests {
         assert_eq!(axis_span(&[0.0, 10.0], false), (-0.5, 10.5));
         assert_eq!(axis_span(&[2.0], true), (1.0, 3.0));
         assert_eq!(axis_span(&[], false), (0.0, 1.0));
+    }
+
+    #[test]
+    fn the_legend_goes_to_the_emptiest_corner() {
+        let pts = [(0.9, 0.9), (0.8, 0.7), (0.1, 0.9), (0.9, 0.1)];
+        let refs: Vec<&(f64, f64)> = pts.iter().collect();
+        assert!(matches!(legend_corner(&refs, (0.0, 1.0), (0.0, 1.0)), SeriesLabelPosition::LowerLeft));
+        assert!(matches!(legend_corner(&[], (0.0, 1.0), (0.0, 1.0)), SeriesLabelPosition::UpperRight));
     }
 
     #[test]
