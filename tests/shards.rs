@@ -23,7 +23,11 @@ fn tmp(name: &str) -> PathBuf {
 }
 
 fn text(o: &Output) -> String {
-    format!("{}{}", String::from_utf8_lossy(&o.stdout), String::from_utf8_lossy(&o.stderr))
+    format!(
+        "{}{}",
+        String::from_utf8_lossy(&o.stdout),
+        String::from_utf8_lossy(&o.stderr)
+    )
 }
 
 /// The self-test and ray suites: every verdict kind, ~40 results, seconds.
@@ -31,7 +35,15 @@ const MANIFESTS: [&str; 2] = ["TESTS/selftest/manifest.yaml", "TESTS/rays/manife
 
 fn run(manifest: &str, out: &Path, extra: &[&str]) -> Output {
     hpjudge()
-        .args(["run", manifest, "--backend", "cpu", "--profile", "ci", "--out"])
+        .args([
+            "run",
+            manifest,
+            "--backend",
+            "cpu",
+            "--profile",
+            "ci",
+            "--out",
+        ])
         .arg(out)
         .args(extra)
         .output()
@@ -40,11 +52,15 @@ fn run(manifest: &str, out: &Path, extra: &[&str]) -> Output {
 
 /// (case, backend) -> verdict of a scoreboard file.
 fn verdicts(board: &Path) -> BTreeMap<(String, String), String> {
-    let v: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(board).unwrap()).unwrap();
+    let v: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(board).unwrap()).unwrap();
     let mut m = BTreeMap::new();
     for c in v["cases"].as_array().unwrap() {
         for r in c["results"].as_array().unwrap() {
-            let key = (c["id"].as_str().unwrap().to_string(), r["backend"].as_str().unwrap().to_string());
+            let key = (
+                c["id"].as_str().unwrap().to_string(),
+                r["backend"].as_str().unwrap().to_string(),
+            );
             m.insert(key, r["verdict"].as_str().unwrap().to_string());
         }
     }
@@ -65,12 +81,29 @@ fn merged_shards_equal_the_unsharded_runs_verdicts() {
             boards.push(out.join("scoreboard.json"));
         }
         let sizes: Vec<usize> = boards.iter().map(|b| verdicts(b).len()).collect();
-        assert!(sizes.iter().all(|&n| n < whole.len()), "a shard ran everything: {sizes:?}");
+        assert!(
+            sizes.iter().all(|&n| n < whole.len()),
+            "a shard ran everything: {sizes:?}"
+        );
         let merged = d.join("merged.json");
-        let o = hpjudge().arg("merge").args(&boards).arg("-o").arg(&merged).arg("--junit").arg(d.join("j.xml")).output().unwrap();
-        assert!(o.status.code() == Some(0) || o.status.code() == Some(1), "{}", text(&o));
+        let o = hpjudge()
+            .arg("merge")
+            .args(&boards)
+            .arg("-o")
+            .arg(&merged)
+            .arg("--junit")
+            .arg(d.join("j.xml"))
+            .output()
+            .unwrap();
+        assert!(
+            o.status.code() == Some(0) || o.status.code() == Some(1),
+            "{}",
+            text(&o)
+        );
         assert_eq!(verdicts(&merged), whole, "{manifest}");
-        assert!(std::fs::read_to_string(d.join("j.xml")).unwrap().contains("<testsuite"));
+        assert!(std::fs::read_to_string(d.join("j.xml"))
+            .unwrap()
+            .contains("<testsuite"));
     }
 }
 
@@ -94,7 +127,10 @@ fn an_incomplete_or_overlapping_shard_set_is_refused() {
     let o = merge(&["s1", "s2", "s1"]);
     assert_eq!(o.status.code(), Some(2), "{}", text(&o));
     assert!(text(&o).contains("overlapping"), "{}", text(&o));
-    let o = hpjudge().args(["run", m, "--partition", "3/2"]).output().unwrap();
+    let o = hpjudge()
+        .args(["run", m, "--partition", "3/2"])
+        .output()
+        .unwrap();
     assert_eq!(o.status.code(), Some(2), "{}", text(&o));
 }
 
@@ -107,8 +143,14 @@ fn the_report_lists_every_case_with_its_checks_and_repro() {
     let html = std::fs::read_to_string(d.join("report.html")).unwrap();
     let board = verdicts(&d.join("scoreboard.json"));
     for (id, _) in board.keys() {
-        assert!(html.contains(&format!("data-case=\"{id}\"")), "no {id} in the report");
+        assert!(
+            html.contains(&format!("data-case=\"{id}\"")),
+            "no {id} in the report"
+        );
     }
     assert!(html.contains("class=\"checks\"") && html.contains("class=\"repro\""));
-    assert!(!html.contains("src=\"http") && !html.contains("href=\"http"), "the page must not need the network");
+    assert!(
+        !html.contains("src=\"http") && !html.contains("href=\"http"),
+        "the page must not need the network"
+    );
 }

@@ -12,11 +12,10 @@ use hotpath::budget::{parse_size, MemBudget};
 use hotpath::error::Error;
 use hotpath::judge::artifacts::{write_png, write_tensor};
 use hotpath::judge::junit::to_junit;
-use hotpath::judge::partition::{parse_partition, Partition};
-use hotpath::judge::{frames, merge, plot, progress, report};
 use hotpath::judge::load::JudgeInputError;
 use hotpath::judge::manifest::Manifest;
 use hotpath::judge::ops::{self, BackendKind};
+use hotpath::judge::partition::{parse_partition, Partition};
 use hotpath::judge::perf::{
     compare, missing_or_errored, read_pair, validate_compare_args, Change, ScenarioResult,
 };
@@ -25,6 +24,7 @@ use hotpath::judge::runner::{self, load_inputs, print_summary, BackendFilter, Ru
 use hotpath::judge::scoreboard::Verdict;
 use hotpath::judge::worker;
 use hotpath::judge::{env, perf_run};
+use hotpath::judge::{frames, merge, plot, progress, report};
 use hotpath::real::Precision;
 
 /// hpjudge: runs hotpath's renderers on declarative cases and judges them.

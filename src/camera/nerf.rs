@@ -49,7 +49,23 @@ impl Lens {
         macro_rules! pick {
             ($($f:ident),*) => { Lens { $($f: self.$f.clone().or_else(|| base.$f.clone()),)* } };
         }
-        pick!(fl_x, fl_y, camera_angle_x, camera_angle_y, cx, cy, w, h, k1, k2, k3, k4, p1, p2, camera_model)
+        pick!(
+            fl_x,
+            fl_y,
+            camera_angle_x,
+            camera_angle_y,
+            cx,
+            cy,
+            w,
+            h,
+            k1,
+            k2,
+            k3,
+            k4,
+            p1,
+            p2,
+            camera_model
+        )
     }
 }
 
@@ -107,15 +123,33 @@ pub fn parse(text: &str, at: &str, size: (u32, u32)) -> Result<Vec<NerfFrame>> {
     f.frames
         .iter()
         .enumerate()
-        .map(|(i, fr)| frame(fr, &fr.lens.over(&f.lens), &format!("{at}: frames[{i}]"), i, size))
+        .map(|(i, fr)| {
+            frame(
+                fr,
+                &fr.lens.over(&f.lens),
+                &format!("{at}: frames[{i}]"),
+                i,
+                size,
+            )
+        })
         .collect()
 }
 
 fn frame(fr: &FrameJson, l: &Lens, at: &str, i: usize, size: (u32, u32)) -> Result<NerfFrame> {
     let bad = |key: &str, what: String| Error::invalid(format!("{at}.{key}"), what);
-    for (key, v) in [("k1", l.k1), ("k2", l.k2), ("k3", l.k3), ("k4", l.k4), ("p1", l.p1), ("p2", l.p2)] {
+    for (key, v) in [
+        ("k1", l.k1),
+        ("k2", l.k2),
+        ("k3", l.k3),
+        ("k4", l.k4),
+        ("p1", l.p1),
+        ("p2", l.p2),
+    ] {
         if v.is_some_and(|v| v != 0.0) {
-            return Err(bad(key, "lens distortion is not supported (pinhole cameras only)".into()));
+            return Err(bad(
+                key,
+                "lens distortion is not supported (pinhole cameras only)".into(),
+            ));
         }
     }
     if let Some(m) = &l.camera_model {
@@ -126,18 +160,28 @@ fn frame(fr: &FrameJson, l: &Lens, at: &str, i: usize, size: (u32, u32)) -> Resu
     let w = l.w.unwrap_or(size.0 as f64);
     let h = l.h.unwrap_or(size.1 as f64);
     if !(w.is_finite() && h.is_finite() && w >= 1.0 && h >= 1.0) {
-        return Err(bad("w", format!("image size {w} x {h} must be at least 1 x 1")));
+        return Err(bad(
+            "w",
+            format!("image size {w} x {h} must be at least 1 x 1"),
+        ));
     }
-    let focal = |fl: Option<f64>, angle: Option<f64>, extent: f64, key: &str| -> Result<Option<f64>> {
-        match (fl, angle) {
-            (Some(f), _) => Ok(Some(f)),
-            (None, Some(a)) if a > 0.0 && a < std::f64::consts::PI => Ok(Some(0.5 * extent / (0.5 * a).tan())),
-            (None, Some(a)) => Err(bad(key, format!("{a} is not an angle in (0, pi) radians"))),
-            (None, None) => Ok(None),
-        }
-    };
-    let fx = focal(l.fl_x, l.camera_angle_x, w, "camera_angle_x")?
-        .ok_or_else(|| bad("fl_x", "needs `fl_x` or `camera_angle_x` (in the file or the frame)".into()))?;
+    let focal =
+        |fl: Option<f64>, angle: Option<f64>, extent: f64, key: &str| -> Result<Option<f64>> {
+            match (fl, angle) {
+                (Some(f), _) => Ok(Some(f)),
+                (None, Some(a)) if a > 0.0 && a < std::f64::consts::PI => {
+                    Ok(Some(0.5 * extent / (0.5 * a).tan()))
+                }
+                (None, Some(a)) => Err(bad(key, format!("{a} is not an angle in (0, pi) radians"))),
+                (None, None) => Ok(None),
+            }
+        };
+    let fx = focal(l.fl_x, l.camera_angle_x, w, "camera_angle_x")?.ok_or_else(|| {
+        bad(
+            "fl_x",
+            "needs `fl_x` or `camera_angle_x` (in the file or the frame)".into(),
+        )
+    })?;
     let fy = focal(l.fl_y, l.camera_angle_y, h, "camera_angle_y")?.unwrap_or(fx);
     let k = Intrinsics {
         fx,
@@ -147,16 +191,31 @@ fn frame(fr: &FrameJson, l: &Lens, at: &str, i: usize, size: (u32, u32)) -> Resu
     };
     let m = &fr.transform_matrix;
     if !(m.len() == 3 || m.len() == 4) || m.iter().any(|r| r.len() != 4) {
-        return Err(bad("transform_matrix", "must be 4 rows (or 3) of 4 numbers".into()));
+        return Err(bad(
+            "transform_matrix",
+            "must be 4 rows (or 3) of 4 numbers".into(),
+        ));
     }
-    if m.len() == 4 && m[3].iter().zip([0.0, 0.0, 0.0, 1.0]).any(|(a, b)| (a - b).abs() > 1e-6) {
-        return Err(bad("transform_matrix", format!("last row {:?} is not [0, 0, 0, 1]", m[3])));
+    if m.len() == 4
+        && m[3]
+            .iter()
+            .zip([0.0, 0.0, 0.0, 1.0])
+            .any(|(a, b)| (a - b).abs() > 1e-6)
+    {
+        return Err(bad(
+            "transform_matrix",
+            format!("last row {:?} is not [0, 0, 0, 1]", m[3]),
+        ));
     }
     let c2w: Mat34 = [0, 1, 2].map(|r| [m[r][0], m[r][1], m[r][2], m[r][3]]);
     let cam = Camera::Pinhole { k, c2w };
-    cam.validate().map_err(|e| bad("transform_matrix", e.to_string()))?;
+    cam.validate()
+        .map_err(|e| bad("transform_matrix", e.to_string()))?;
     Ok(NerfFrame {
-        name: fr.file_path.clone().unwrap_or_else(|| format!("frame_{i:04}")),
+        name: fr
+            .file_path
+            .clone()
+            .unwrap_or_else(|| format!("frame_{i:04}")),
         k,
         width: w,
         height: h,
@@ -195,9 +254,27 @@ mod tests {
         let text = r#"{"fl_x": 100, "w": 200, "h": 100, "camera_model": "OPENCV", "k1": 0,
           "frames": [{"transform_matrix": [[1,0,0,0],[0,1,0,0],[0,0,1,0]], "fl_y": 90, "cx": 110, "cy": 40}]}"#;
         let f = parse(text, "t.json", (1, 1)).unwrap();
-        assert_eq!(f[0].k, Intrinsics { fx: 100.0, fy: 90.0, cx: 110.0, cy: 40.0 });
-        let Camera::Pinhole { k, .. } = f[0].camera(100, 50) else { panic!() };
-        assert_eq!(k, Intrinsics { fx: 50.0, fy: 45.0, cx: 55.0, cy: 20.0 });
+        assert_eq!(
+            f[0].k,
+            Intrinsics {
+                fx: 100.0,
+                fy: 90.0,
+                cx: 110.0,
+                cy: 40.0
+            }
+        );
+        let Camera::Pinhole { k, .. } = f[0].camera(100, 50) else {
+            panic!()
+        };
+        assert_eq!(
+            k,
+            Intrinsics {
+                fx: 50.0,
+                fy: 45.0,
+                cx: 55.0,
+                cy: 20.0
+            }
+        );
     }
 
     #[test]
@@ -205,12 +282,30 @@ mod tests {
         let cases = [
             ("{\"frames\": [", "t.json:1"),
             ("{\"frames\": []}", "`frames` is empty"),
-            (r#"{"frames": [{"transform_matrix": [[1,0,0,0],[0,1,0,0],[0,0,1,0]]}]}"#, "frames[0].fl_x"),
-            (r#"{"fl_x": 1, "k1": 0.1, "frames": [{"transform_matrix": [[1,0,0,0],[0,1,0,0],[0,0,1,0]]}]}"#, "frames[0].k1"),
-            (r#"{"fl_x": 1, "frames": [{"transform_matrix": [[1,0,0,0],[0,1,0,0],[0,0,1,0],[1,0,0,1]]}]}"#, "not [0, 0, 0, 1]"),
-            (r#"{"fl_x": 1, "frames": [{"transform_matrix": [[1,0,0],[0,1,0],[0,0,1]]}]}"#, "frames[0].transform_matrix"),
-            (r#"{"camera_angle_x": 4, "frames": [{"transform_matrix": [[1,0,0,0],[0,1,0,0],[0,0,1,0]]}]}"#, "not an angle"),
-            (r#"{"fl_x": 1, "camera_model": "OPENCV_FISHEYE", "frames": [{"transform_matrix": [[1,0,0,0],[0,1,0,0],[0,0,1,0]]}]}"#, "camera_model"),
+            (
+                r#"{"frames": [{"transform_matrix": [[1,0,0,0],[0,1,0,0],[0,0,1,0]]}]}"#,
+                "frames[0].fl_x",
+            ),
+            (
+                r#"{"fl_x": 1, "k1": 0.1, "frames": [{"transform_matrix": [[1,0,0,0],[0,1,0,0],[0,0,1,0]]}]}"#,
+                "frames[0].k1",
+            ),
+            (
+                r#"{"fl_x": 1, "frames": [{"transform_matrix": [[1,0,0,0],[0,1,0,0],[0,0,1,0],[1,0,0,1]]}]}"#,
+                "not [0, 0, 0, 1]",
+            ),
+            (
+                r#"{"fl_x": 1, "frames": [{"transform_matrix": [[1,0,0],[0,1,0],[0,0,1]]}]}"#,
+                "frames[0].transform_matrix",
+            ),
+            (
+                r#"{"camera_angle_x": 4, "frames": [{"transform_matrix": [[1,0,0,0],[0,1,0,0],[0,0,1,0]]}]}"#,
+                "not an angle",
+            ),
+            (
+                r#"{"fl_x": 1, "camera_model": "OPENCV_FISHEYE", "frames": [{"transform_matrix": [[1,0,0,0],[0,1,0,0],[0,0,1,0]]}]}"#,
+                "camera_model",
+            ),
         ];
         for (text, want) in cases {
             let e = parse(text, "t.json", (8, 8)).unwrap_err().to_string();

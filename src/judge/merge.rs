@@ -14,7 +14,8 @@ use super::scoreboard::Scoreboard;
 /// Reads a scoreboard, naming the file on any error.
 pub fn read_board(path: &std::path::Path) -> Result<Scoreboard, JudgeInputError> {
     let at = path.display().to_string();
-    let text = std::fs::read_to_string(path).map_err(|e| JudgeInputError::new(&at, "", e.to_string()))?;
+    let text =
+        std::fs::read_to_string(path).map_err(|e| JudgeInputError::new(&at, "", e.to_string()))?;
     serde_json::from_str(&text)
         .map_err(|e| JudgeInputError::new(&at, "", format!("not a scoreboard: {e}")))
 }
@@ -36,40 +37,78 @@ pub fn merge(boards: &[(String, Scoreboard)]) -> Result<Scoreboard, JudgeInputEr
             .partition
             .ok_or_else(|| err(at, "not a shard (run without --partition)".into()))?;
         if p.count != p0.count {
-            return Err(err(at, format!("shard {} but {first_at} is shard {}", p.label(), p0.label())));
+            return Err(err(
+                at,
+                format!("shard {} but {first_at} is shard {}", p.label(), p0.label()),
+            ));
         }
-        if b.inputs != first.inputs || b.environment.get("profile") != first.environment.get("profile") {
-            return Err(err(at, format!("other inputs or profile than {first_at}: shards of different runs")));
+        if b.inputs != first.inputs
+            || b.environment.get("profile") != first.environment.get("profile")
+        {
+            return Err(err(
+                at,
+                format!("other inputs or profile than {first_at}: shards of different runs"),
+            ));
         }
         if let Some(other) = seen.insert(p.index, at) {
-            return Err(err(at, format!("overlapping shards: {other} is shard {} too", p.label())));
+            return Err(err(
+                at,
+                format!("overlapping shards: {other} is shard {} too", p.label()),
+            ));
         }
         if !b.complete {
-            return Err(err(at, format!(
-                "incomplete shard {}: {} of {} results ({})",
-                p.label(), b.cases_done, b.cases_total, b.stopped.as_deref().unwrap_or("stopped early")
-            )));
+            return Err(err(
+                at,
+                format!(
+                    "incomplete shard {}: {} of {} results ({})",
+                    p.label(),
+                    b.cases_done,
+                    b.cases_total,
+                    b.stopped.as_deref().unwrap_or("stopped early")
+                ),
+            ));
         }
         for c in &b.cases {
             if shard_of(&c.id, p.count) != p.index {
-                return Err(err(at, format!("case {} belongs to shard {}/{}, not {}", c.id, shard_of(&c.id, p.count), p.count, p.label())));
+                return Err(err(
+                    at,
+                    format!(
+                        "case {} belongs to shard {}/{}, not {}",
+                        c.id,
+                        shard_of(&c.id, p.count),
+                        p.count,
+                        p.label()
+                    ),
+                ));
             }
             if let Some(other) = owner.insert(&c.id, at) {
-                return Err(err(at, format!("overlapping shards: case {} is in {other} too", c.id)));
+                return Err(err(
+                    at,
+                    format!("overlapping shards: case {} is in {other} too", c.id),
+                ));
             }
         }
     }
     let missing: BTreeSet<u32> = (1..=p0.count).filter(|k| !seen.contains_key(k)).collect();
     if !missing.is_empty() {
-        let m: Vec<String> = missing.iter().map(|k| format!("{k}/{}", p0.count)).collect();
-        return Err(err("merge", format!("incomplete shard set: missing {}", m.join(", "))));
+        let m: Vec<String> = missing
+            .iter()
+            .map(|k| format!("{k}/{}", p0.count))
+            .collect();
+        return Err(err(
+            "merge",
+            format!("incomplete shard set: missing {}", m.join(", ")),
+        ));
     }
     let mut out = first.clone();
     out.partition = None;
     out.complete = true;
     out.stopped = None;
     out.cases_total = boards.iter().map(|(_, b)| b.cases_total).sum();
-    out.cases = boards.iter().flat_map(|(_, b)| b.cases.iter().cloned()).collect();
+    out.cases = boards
+        .iter()
+        .flat_map(|(_, b)| b.cases.iter().cloned())
+        .collect();
     out.finish();
     Ok(out)
 }
@@ -113,8 +152,15 @@ mod tests {
     fn shards(ids: &[&'static str], n: u32) -> Vec<(String, Scoreboard)> {
         (1..=n)
             .map(|k| {
-                let mine: Vec<&str> = ids.iter().copied().filter(|i| shard_of(i, n) == k).collect();
-                (format!("s{k}.json"), board(Some(Partition { index: k, count: n }), &mine))
+                let mine: Vec<&str> = ids
+                    .iter()
+                    .copied()
+                    .filter(|i| shard_of(i, n) == k)
+                    .collect();
+                (
+                    format!("s{k}.json"),
+                    board(Some(Partition { index: k, count: n }), &mine),
+                )
             })
             .collect()
     }
@@ -144,20 +190,29 @@ mod tests {
         let mut s = shards(&IDS, 2);
         let stray = s[0].1.cases[0].clone();
         s[1].1.cases.push(stray);
-        assert!(merge(&s).unwrap_err().to_string().contains("belongs to shard"));
+        assert!(merge(&s)
+            .unwrap_err()
+            .to_string()
+            .contains("belongs to shard"));
     }
 
     #[test]
     fn unfinished_unsharded_or_mismatched_boards_are_refused() {
         let mut s = shards(&IDS, 2);
         s[1].1.complete = false;
-        assert!(merge(&s).unwrap_err().to_string().contains("incomplete shard 2/2"));
+        assert!(merge(&s)
+            .unwrap_err()
+            .to_string()
+            .contains("incomplete shard 2/2"));
         let mut s = shards(&IDS, 2);
         s[1].1.partition = None;
         assert!(merge(&s).unwrap_err().to_string().contains("not a shard"));
         let mut s = shards(&IDS, 2);
         s[1].1.inputs.thresholds_sha256 = "other".into();
-        assert!(merge(&s).unwrap_err().to_string().contains("different runs"));
+        assert!(merge(&s)
+            .unwrap_err()
+            .to_string()
+            .contains("different runs"));
         let mut s = shards(&IDS, 2);
         s[1].1.partition = Some(Partition { index: 2, count: 3 });
         assert!(merge(&s).unwrap_err().to_string().contains("shard 2/3"));

@@ -49,9 +49,7 @@ pub fn parse_partition(s: &str) -> Result<Partition, String> {
     };
     let (index, count) = (num(k)?, num(n)?);
     if count == 0 || count > MAX_SHARDS {
-        return Err(format!(
-            "{s:?}: the shard count must be 1..={MAX_SHARDS}"
-        ));
+        return Err(format!("{s:?}: the shard count must be 1..={MAX_SHARDS}"));
     }
     if index == 0 || index > count {
         return Err(format!("{s:?}: the shard index must be 1..={count}"));
@@ -77,7 +75,12 @@ mod tests {
             }
             // Hashing spreads 500 ids within 25% of an even split.
             let even = 500.0 / n as f64;
-            assert!(sizes.iter().all(|&s| (s as f64 - even).abs() < 0.25 * even + 3.0), "{sizes:?}");
+            assert!(
+                sizes
+                    .iter()
+                    .all(|&s| (s as f64 - even).abs() < 0.25 * even + 3.0),
+                "{sizes:?}"
+            );
         }
     }
 
@@ -85,7 +88,10 @@ mod tests {
     fn assignment_is_stable_across_builds() {
         // Pinned values: changing the hash would move cases between CI runners.
         let d = Sha256::digest(b"abc");
-        assert_eq!(u64::from_be_bytes(d[..8].try_into().unwrap()), 0xba7816bf8f01cfea);
+        assert_eq!(
+            u64::from_be_bytes(d[..8].try_into().unwrap()),
+            0xba7816bf8f01cfea
+        );
         assert_eq!(shard_of("abc", 2), 1 + (0xba7816bf8f01cfea_u64 % 2) as u32);
         assert_eq!(shard_of("abc", 1), 1);
     }

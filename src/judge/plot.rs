@@ -210,7 +210,10 @@ fn register_font() -> Result<()> {
     if ok {
         Ok(())
     } else {
-        Err(Error::invalid("plot font", "the bundled font does not load"))
+        Err(Error::invalid(
+            "plot font",
+            "the bundled font does not load",
+        ))
     }
 }
 
@@ -237,7 +240,10 @@ fn draw<DB: DrawingBackend>(root: &DrawingArea<DB, Shift>, chart: &Chart) -> Res
             s.xs.iter()
                 .zip(&s.ys)
                 .filter_map(|(&x, &y)| {
-                    Some((axis_position(x, chart.log_x)?, axis_position(y, chart.log_y)?))
+                    Some((
+                        axis_position(x, chart.log_x)?,
+                        axis_position(y, chart.log_y)?,
+                    ))
                 })
                 .collect()
         })
@@ -279,12 +285,19 @@ fn draw<DB: DrawingBackend>(root: &DrawingArea<DB, Shift>, chart: &Chart) -> Res
     for (k, (s, p)) in chart.series.iter().zip(&pts).enumerate() {
         let [r, g, b] = PALETTE[k % PALETTE.len()];
         let c = RGBColor(r, g, b);
-        let legend = move |(x, y): (i32, i32)| PathElement::new(vec![(x, y), (x + 20, y)], c.stroke_width(2));
+        let legend = move |(x, y): (i32, i32)| {
+            PathElement::new(vec![(x, y), (x + 20, y)], c.stroke_width(2))
+        };
         if s.guide {
-            ctx.draw_series(DashedLineSeries::new(p.iter().cloned(), 8, 6, c.stroke_width(2)))
-                .map_err(&e)?
-                .label(&s.name)
-                .legend(legend);
+            ctx.draw_series(DashedLineSeries::new(
+                p.iter().cloned(),
+                8,
+                6,
+                c.stroke_width(2),
+            ))
+            .map_err(&e)?
+            .label(&s.name)
+            .legend(legend);
         } else {
             let line = if s.scatter { vec![] } else { p.clone() };
             ctx.draw_series(LineSeries::new(line, c.stroke_width(2)))
@@ -333,8 +346,8 @@ pub fn render(chart: &Chart) -> Result<Tensor> {
 pub fn render_svg(chart: &Chart) -> Result<String> {
     let mut svg = String::new();
     {
-        let root = SVGBackend::with_string(&mut svg, (PLOT_W as u32, PLOT_H as u32))
-            .into_drawing_area();
+        let root =
+            SVGBackend::with_string(&mut svg, (PLOT_W as u32, PLOT_H as u32)).into_drawing_area();
         draw(&root, chart)?;
     }
     Ok(svg)
@@ -403,7 +416,10 @@ mod tests {
             "0.001",
             "10",
         ] {
-            assert!(texts.contains(&want), "no text {want:?} in the SVG: {texts:?}");
+            assert!(
+                texts.contains(&want),
+                "no text {want:?} in the SVG: {texts:?}"
+            );
         }
     }
 
@@ -440,8 +456,14 @@ mod tests {
     fn the_legend_goes_to_the_emptiest_corner() {
         let pts = [(0.9, 0.9), (0.8, 0.7), (0.1, 0.9), (0.9, 0.1)];
         let refs: Vec<&(f64, f64)> = pts.iter().collect();
-        assert!(matches!(legend_corner(&refs, (0.0, 1.0), (0.0, 1.0)), SeriesLabelPosition::LowerLeft));
-        assert!(matches!(legend_corner(&[], (0.0, 1.0), (0.0, 1.0)), SeriesLabelPosition::UpperRight));
+        assert!(matches!(
+            legend_corner(&refs, (0.0, 1.0), (0.0, 1.0)),
+            SeriesLabelPosition::LowerLeft
+        ));
+        assert!(matches!(
+            legend_corner(&[], (0.0, 1.0), (0.0, 1.0)),
+            SeriesLabelPosition::UpperRight
+        ));
     }
 
     #[test]

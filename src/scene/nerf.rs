@@ -49,21 +49,36 @@ pub fn frames(doc: &SceneDoc) -> Result<Option<Vec<NerfFrame>>> {
     let at = path.display().to_string();
     let meta = std::fs::metadata(&path).map_err(|e| Error::io(&path, e))?;
     if meta.len() > super::MAX_YAML_BYTES {
-        return Err(Error::invalid(&at, format!("{} bytes is over the limit", meta.len())));
+        return Err(Error::invalid(
+            &at,
+            format!("{} bytes is over the limit", meta.len()),
+        ));
     }
     let text = std::fs::read_to_string(&path).map_err(|e| Error::io(&path, e))?;
     let dim = |k: &str| doc.value.get(k).and_then(Value::as_u64).map(|v| v as u32);
-    parse(&text, &at, (dim("width").unwrap_or(64), dim("height").unwrap_or(64))).map(Some)
+    parse(
+        &text,
+        &at,
+        (dim("width").unwrap_or(64), dim("height").unwrap_or(64)),
+    )
+    .map(Some)
 }
 
 /// Replaces a nerf camera block by the `pinhole_k` camera of its frame.
 pub fn expand(doc: &mut SceneDoc) -> Result<()> {
     let Some(s) = spec(doc)? else { return Ok(()) };
-    let Some(all) = frames(doc)? else { return Ok(()) };
+    let Some(all) = frames(doc)? else {
+        return Ok(());
+    };
     let f = all.get(s.frame).ok_or_else(|| {
         Error::invalid(
             format!("{}: camera.frame", doc.at()),
-            format!("{} is past the last of {} frames in {}", s.frame, all.len(), s.transforms),
+            format!(
+                "{} is past the last of {} frames in {}",
+                s.frame,
+                all.len(),
+                s.transforms
+            ),
         )
     })?;
     let map = doc
@@ -88,7 +103,10 @@ pub fn expand(doc: &mut SceneDoc) -> Result<()> {
     cam.insert("type".into(), "pinhole_k".into());
     let kv = [k.fx, 0.0, k.cx, 0.0, k.fy, k.cy, 0.0, 0.0, 1.0];
     cam.insert("k".into(), kv.iter().map(|&x| Value::from(x)).collect());
-    cam.insert("c2w".into(), c2w.iter().flatten().map(|&x| Value::from(x)).collect());
+    cam.insert(
+        "c2w".into(),
+        c2w.iter().flatten().map(|&x| Value::from(x)).collect(),
+    );
     map.insert("camera".into(), Value::Mapping(cam));
     Ok(())
 }
@@ -114,18 +132,30 @@ mod tests {
     fn a_nerf_camera_becomes_the_pinhole_k_of_its_frame_scaled_to_the_scene() {
         let d = std::env::temp_dir().join(format!("hp-nerf-{}", std::process::id()));
         std::fs::create_dir_all(&d).unwrap();
-        let s = doc(&d, "renderer: rays\nwidth: 50\ncamera: {type: nerf, transforms: t.json, frame: 1}\n").unwrap();
+        let s = doc(
+            &d,
+            "renderer: rays\nwidth: 50\ncamera: {type: nerf, transforms: t.json, frame: 1}\n",
+        )
+        .unwrap();
         let cam = &s.value["camera"];
         assert_eq!(cam["type"].as_str(), Some("pinhole_k"));
-        let k: Vec<f64> = cam["k"].as_sequence().unwrap().iter().map(|v| v.as_f64().unwrap()).collect();
+        let k: Vec<f64> = cam["k"]
+            .as_sequence()
+            .unwrap()
+            .iter()
+            .map(|v| v.as_f64().unwrap())
+            .collect();
         // width 50 of 100: fx and cx halve; height from the file (80): fy and cy stay.
         assert_eq!(k, vec![25.0, 0.0, 5.0, 0.0, 50.0, 40.0, 0.0, 0.0, 1.0]);
         assert_eq!(s.value["height"].as_u64(), Some(80));
         assert_eq!(cam["c2w"][3].as_f64(), Some(3.0));
         super::super::validate(&s).unwrap();
-        let e = doc(&d, "renderer: rays\ncamera: {type: nerf, transforms: t.json, frame: 2}\n")
-            .unwrap_err()
-            .to_string();
+        let e = doc(
+            &d,
+            "renderer: rays\ncamera: {type: nerf, transforms: t.json, frame: 2}\n",
+        )
+        .unwrap_err()
+        .to_string();
         assert!(e.contains("past the last of 2 frames"), "{e}");
         std::fs::remove_dir_all(&d).unwrap();
     }

@@ -53,7 +53,14 @@ fn factor(h: usize, w: usize) -> usize {
 /// Reduces `vals` (h x w, `c` values a pixel) by `f` in each direction:
 /// each block's mean (`mean`; non-finite values count as 0) or maximum
 /// (an infinite difference stays infinite: the heatmap's top colour).
-fn reduce(h: usize, w: usize, c: usize, vals: &[f64], f: usize, mean: bool) -> (usize, usize, Vec<f64>) {
+fn reduce(
+    h: usize,
+    w: usize,
+    c: usize,
+    vals: &[f64],
+    f: usize,
+    mean: bool,
+) -> (usize, usize, Vec<f64>) {
     let (rh, rw) = (h.div_ceil(f), w.div_ceil(f));
     let mut out = vec![0.0; rh * rw * c];
     let mut n = vec![0usize; rh * rw];
@@ -87,7 +94,11 @@ pub fn abs_diff(a: &Rgb, b: &Rgb) -> Vec<f64> {
             (0..3)
                 .map(|k| {
                     let d = (p[k] - q[k]).abs();
-                    if d.is_nan() { f64::INFINITY } else { d }
+                    if d.is_nan() {
+                        f64::INFINITY
+                    } else {
+                        d
+                    }
                 })
                 .fold(0.0, f64::max)
         })
@@ -96,7 +107,11 @@ pub fn abs_diff(a: &Rgb, b: &Rgb) -> Vec<f64> {
 
 /// The heatmap colour of `t` in [0, 1] (linear interpolation of the stops).
 pub fn heat(t: f64) -> [u8; 3] {
-    let t = if t.is_finite() { t.clamp(0.0, 1.0) } else { 1.0 };
+    let t = if t.is_finite() {
+        t.clamp(0.0, 1.0)
+    } else {
+        1.0
+    };
     let x = t * (HEAT_STOPS.len() - 1) as f64;
     let i = (x.floor() as usize).min(HEAT_STOPS.len() - 2);
     let f = x - i as f64;
@@ -118,7 +133,13 @@ pub fn png_uri(h: usize, w: usize, bytes: Vec<u8>) -> Option<String> {
 /// A linear image as a reduced sRGB PNG URI (the artifacts' mapping).
 pub fn image_uri(img: &Rgb) -> Option<String> {
     let (h, w, v) = reduce(img.h, img.w, 3, &img.v, factor(img.h, img.w), true);
-    png_uri(h, w, v.iter().map(|&x| (srgb_encode(x) * 255.0).round() as u8).collect())
+    png_uri(
+        h,
+        w,
+        v.iter()
+            .map(|&x| (srgb_encode(x) * 255.0).round() as u8)
+            .collect(),
+    )
 }
 
 /// One comparison: the three images and the heatmap's scale.
@@ -141,7 +162,11 @@ pub fn compare(ours: &Rgb, reference: &Rgb) -> Option<Comparison> {
     let max_diff = d.iter().cloned().fold(0.0, f64::max);
     let mean_diff = d.iter().filter(|x| x.is_finite()).sum::<f64>() / d.len() as f64;
     let (h, w, r) = reduce(ours.h, ours.w, 1, &d, factor(ours.h, ours.w), false);
-    let scale = if max_diff > 0.0 && max_diff.is_finite() { max_diff } else { 1.0 };
+    let scale = if max_diff > 0.0 && max_diff.is_finite() {
+        max_diff
+    } else {
+        1.0
+    };
     let heat_px: Vec<u8> = r.iter().flat_map(|&x| heat(x / scale)).collect();
     Some(Comparison {
         ours: image_uri(ours)?,
@@ -166,7 +191,11 @@ mod tests {
     use super::*;
 
     fn img(h: usize, w: usize, f: impl Fn(usize) -> f64) -> Rgb {
-        Rgb { h, w, v: (0..h * w * 3).map(f).collect() }
+        Rgb {
+            h,
+            w,
+            v: (0..h * w * 3).map(f).collect(),
+        }
     }
 
     #[test]

@@ -37,7 +37,13 @@ pub fn renderer(op: &str) -> &str {
 fn image_names(r: &BackendResult) -> Vec<String> {
     r.artifacts
         .iter()
-        .filter_map(|a| Path::new(a).file_name()?.to_str()?.strip_suffix(".png").map(String::from))
+        .filter_map(|a| {
+            Path::new(a)
+                .file_name()?
+                .to_str()?
+                .strip_suffix(".png")
+                .map(String::from)
+        })
         .filter(|n| !is_plot(n))
         .collect()
 }
@@ -79,8 +85,14 @@ fn summary(b: &Scoreboard) -> String {
         rows.push(("stopped".into(), why.clone()));
     }
     flatten("", &b.environment, &mut rows);
-    rows.push(("manifest_tree_sha256".into(), b.inputs.manifest_tree_sha256.clone()));
-    rows.push(("thresholds_sha256".into(), b.inputs.thresholds_sha256.clone()));
+    rows.push((
+        "manifest_tree_sha256".into(),
+        b.inputs.manifest_tree_sha256.clone(),
+    ));
+    rows.push((
+        "thresholds_sha256".into(),
+        b.inputs.thresholds_sha256.clone(),
+    ));
     rows.push(("scenes_sha256".into(), b.inputs.scenes_sha256.clone()));
     s += "<h2>Run and environment</h2>";
     s += &kv_table(&rows);
@@ -92,7 +104,11 @@ fn flatten(prefix: &str, v: &serde_json::Value, rows: &mut Vec<(String, String)>
     match v {
         serde_json::Value::Object(m) => {
             for (k, x) in m {
-                let key = if prefix.is_empty() { k.clone() } else { format!("{prefix}.{k}") };
+                let key = if prefix.is_empty() {
+                    k.clone()
+                } else {
+                    format!("{prefix}.{k}")
+                };
                 flatten(&key, x, rows);
             }
         }
@@ -108,7 +124,11 @@ fn flatten(prefix: &str, v: &serde_json::Value, rows: &mut Vec<(String, String)>
 
 fn table(out: &Path, b: &Scoreboard) -> String {
     let all = |f: &dyn Fn(&CaseEntry, &BackendResult) -> String| -> Vec<String> {
-        let set: BTreeSet<String> = b.cases.iter().flat_map(|c| c.results.iter().map(|r| f(c, r))).collect();
+        let set: BTreeSet<String> = b
+            .cases
+            .iter()
+            .flat_map(|c| c.results.iter().map(|r| f(c, r)))
+            .collect();
         set.into_iter().collect()
     };
     let verdicts = all(&|_, r| r.verdict.name().to_string());
@@ -139,7 +159,11 @@ fn row(out: &Path, b: &Scoreboard, c: &CaseEntry, r: &BackendResult) -> String {
     let note = if !r.reason.is_empty() {
         r.reason.clone()
     } else {
-        r.checks.iter().find(|k| !k.passed).map(|k| format!("{}: {}", k.assertion, k.message)).unwrap_or_default()
+        r.checks
+            .iter()
+            .find(|k| !k.passed)
+            .map(|k| format!("{}: {}", k.assertion, k.message))
+            .unwrap_or_default()
     };
     format!(
         "<tbody class=\"result\" data-case=\"{id}\" data-verdict=\"{v}\" data-renderer=\"{ren}\" data-backend=\"{be}\">\
@@ -194,8 +218,16 @@ fn detail(out: &Path, b: &Scoreboard, c: &CaseEntry, r: &BackendResult) -> Strin
         s += "</table>";
     }
     if !r.metrics.is_empty() {
-        let rows: Vec<(String, String)> = r.metrics.iter().map(|(k, v)| (k.clone(), num(Some(*v)))).collect();
-        s += &format!("<details><summary>{} metrics</summary>{}</details>", rows.len(), kv_table(&rows));
+        let rows: Vec<(String, String)> = r
+            .metrics
+            .iter()
+            .map(|(k, v)| (k.clone(), num(Some(*v))))
+            .collect();
+        s += &format!(
+            "<details><summary>{} metrics</summary>{}</details>",
+            rows.len(),
+            kv_table(&rows)
+        );
     }
     s += &comparisons(out, c, r);
     if !r.artifacts.is_empty() {
@@ -220,14 +252,29 @@ fn comparisons(out: &Path, c: &CaseEntry, r: &BackendResult) -> String {
     let mut s = String::new();
     let names = image_names(r);
     for n in names.iter().filter(|n| !n.contains('.')) {
-        let Some(ours) = images::read_rgb(&dir.join(format!("{n}.npy"))) else { continue };
+        let Some(ours) = images::read_rgb(&dir.join(format!("{n}.npy"))) else {
+            continue;
+        };
         let suffix = format!(".{n}");
         let reference = names
             .iter()
             .find(|m| m.ends_with(&suffix))
-            .map(|m| (m.trim_end_matches(&suffix).to_string(), dir.join(format!("{m}.npy"))))
-            .or_else(|| cpu.map(|x| ("CPU".to_string(), result_dir(out, c, x).join(format!("{n}.npy")))));
-        let cmp = reference.and_then(|(label, p)| Some((label, images::compare(&ours, &images::read_rgb(&p)?)?)));
+            .map(|m| {
+                (
+                    m.trim_end_matches(&suffix).to_string(),
+                    dir.join(format!("{m}.npy")),
+                )
+            })
+            .or_else(|| {
+                cpu.map(|x| {
+                    (
+                        "CPU".to_string(),
+                        result_dir(out, c, x).join(format!("{n}.npy")),
+                    )
+                })
+            });
+        let cmp = reference
+            .and_then(|(label, p)| Some((label, images::compare(&ours, &images::read_rgb(&p)?)?)));
         s += &match cmp {
             Some((label, k)) => triple(n, &label, &k),
             None => match images::image_uri(&ours) {
@@ -266,11 +313,16 @@ fn plots(out: &Path, b: &Scoreboard) -> String {
     for c in &b.cases {
         for r in &c.results {
             for a in r.artifacts.iter().filter(|a| a.ends_with(".png")) {
-                let name = Path::new(a).file_stem().and_then(|x| x.to_str()).unwrap_or("");
+                let name = Path::new(a)
+                    .file_stem()
+                    .and_then(|x| x.to_str())
+                    .unwrap_or("");
                 if !is_plot(name) {
                     continue;
                 }
-                let Ok(bytes) = std::fs::read(out.join(a)) else { continue };
+                let Ok(bytes) = std::fs::read(out.join(a)) else {
+                    continue;
+                };
                 n += 1;
                 s += &format!(
                     "<figure><img src=\"data:image/png;base64,{}\" alt=\"{1}\"><figcaption><code>{1}</code> [{2}]</figcaption></figure>",

@@ -93,7 +93,10 @@ pub const SCRIPT: &str = r#"<script>
 
 /// A `<select>` filter over `values` (first option: all).
 pub fn select(id: &str, label: &str, values: &[String]) -> String {
-    let mut s = format!("<label>{} <select id=\"{id}\"><option value=\"\">all</option>", esc(label));
+    let mut s = format!(
+        "<label>{} <select id=\"{id}\"><option value=\"\">all</option>",
+        esc(label)
+    );
     for v in values {
         s += &format!("<option value=\"{0}\">{0}</option>", esc(v));
     }
@@ -113,7 +116,9 @@ pub fn kv_table(rows: &[(String, String)]) -> String {
 pub fn num(v: Option<f64>) -> String {
     match v {
         None => "-".to_string(),
-        Some(x) if x == 0.0 || (1e-3..1e5).contains(&x.abs()) => format!("{}", (x * 1e4).round() / 1e4),
+        Some(x) if x == 0.0 || (1e-3..1e5).contains(&x.abs()) => {
+            format!("{}", (x * 1e4).round() / 1e4)
+        }
         Some(x) => format!("{x:.3e}"),
     }
 }
@@ -124,7 +129,10 @@ mod tests {
 
     #[test]
     fn escaping_keeps_markup_out_of_the_page() {
-        assert_eq!(esc("<a href=\"x\">&'"), "&lt;a href=&quot;x&quot;&gt;&amp;&apos;");
+        assert_eq!(
+            esc("<a href=\"x\">&'"),
+            "&lt;a href=&quot;x&quot;&gt;&amp;&apos;"
+        );
         assert!(select("f", "v", &["<b>".into()]).contains("&lt;b&gt;"));
     }
 

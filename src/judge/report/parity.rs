@@ -30,7 +30,11 @@ pub fn diff(a: &[f64], b: &[f64]) -> (f64, f64) {
         .zip(b)
         .map(|(x, y)| {
             let d = (x - y).abs();
-            if d.is_nan() { f64::INFINITY } else { d }
+            if d.is_nan() {
+                f64::INFINITY
+            } else {
+                d
+            }
         })
         .fold(0.0, f64::max);
     (d, b.iter().map(|x| x.abs()).fold(0.0, f64::max))
@@ -39,7 +43,13 @@ pub fn diff(a: &[f64], b: &[f64]) -> (f64, f64) {
 fn npy_names(r: &BackendResult) -> Vec<String> {
     r.artifacts
         .iter()
-        .filter_map(|a| Path::new(a).file_name()?.to_str()?.strip_suffix(".npy").map(String::from))
+        .filter_map(|a| {
+            Path::new(a)
+                .file_name()?
+                .to_str()?
+                .strip_suffix(".npy")
+                .map(String::from)
+        })
         .filter(|n| !n.contains('.'))
         .collect()
 }
@@ -53,13 +63,23 @@ fn pairs(out: &Path, c: &CaseEntry) -> Vec<Pair> {
     let cpu_names = npy_names(cpu);
     let mut v = vec![];
     for n in npy_names(gpu).into_iter().filter(|n| cpu_names.contains(n)) {
-        let read = |b: BackendKind| Tensor::read_npy(&out.join(&c.id).join(b.name()).join(format!("{n}.npy"))).ok();
-        let (Some(g), Some(k)) = (read(BackendKind::Gpu), read(BackendKind::Cpu)) else { continue };
+        let read = |b: BackendKind| {
+            Tensor::read_npy(&out.join(&c.id).join(b.name()).join(format!("{n}.npy"))).ok()
+        };
+        let (Some(g), Some(k)) = (read(BackendKind::Gpu), read(BackendKind::Cpu)) else {
+            continue;
+        };
         if !g.is_float() || g.shape() != k.shape() {
             continue;
         }
         let (max_diff, max_cpu) = diff(&g.to_f64_vec(), &k.to_f64_vec());
-        v.push(Pair { case: c.id.clone(), tensor: n, shape: k.shape().to_vec(), max_diff, max_cpu });
+        v.push(Pair {
+            case: c.id.clone(),
+            tensor: n,
+            shape: k.shape().to_vec(),
+            max_diff,
+            max_cpu,
+        });
     }
     v
 }
@@ -70,7 +90,11 @@ pub fn section(out: &Path, b: &Scoreboard) -> String {
     let both: Vec<&CaseEntry> = b
         .cases
         .iter()
-        .filter(|c| [BackendKind::Cpu, BackendKind::Gpu].iter().all(|k| c.results.iter().any(|r| r.backend == *k)))
+        .filter(|c| {
+            [BackendKind::Cpu, BackendKind::Gpu]
+                .iter()
+                .all(|k| c.results.iter().any(|r| r.backend == *k))
+        })
         .collect();
     if both.is_empty() {
         return s + "<p>No case of this run ran on both backends.</p>";
@@ -78,15 +102,34 @@ pub fn section(out: &Path, b: &Scoreboard) -> String {
     let all: Vec<Pair> = both.iter().flat_map(|c| pairs(out, c)).collect();
     let (mut xs, mut ys) = (vec![], vec![]);
     for (i, c) in both.iter().enumerate() {
-        let worst = all.iter().filter(|p| p.case == c.id).map(|p| p.max_diff).fold(f64::NAN, f64::max);
+        let worst = all
+            .iter()
+            .filter(|p| p.case == c.id)
+            .map(|p| p.max_diff)
+            .fold(f64::NAN, f64::max);
         if worst.is_finite() {
             xs.push((i + 1) as f64);
             ys.push(worst.max(1e-12));
         }
     }
-    let secs = |k: BackendKind| both.iter().map(move |c| c.results.iter().find(|r| r.backend == k).map_or(f64::NAN, |r| r.wall_s));
-    let (cs, gs): (Vec<f64>, Vec<f64>) = (secs(BackendKind::Cpu).collect(), secs(BackendKind::Gpu).collect());
-    let lo = cs.iter().chain(&gs).cloned().filter(|x| *x > 0.0).fold(f64::INFINITY, f64::min);
+    let secs = |k: BackendKind| {
+        both.iter().map(move |c| {
+            c.results
+                .iter()
+                .find(|r| r.backend == k)
+                .map_or(f64::NAN, |r| r.wall_s)
+        })
+    };
+    let (cs, gs): (Vec<f64>, Vec<f64>) = (
+        secs(BackendKind::Cpu).collect(),
+        secs(BackendKind::Gpu).collect(),
+    );
+    let lo = cs
+        .iter()
+        .chain(&gs)
+        .cloned()
+        .filter(|x| *x > 0.0)
+        .fold(f64::INFINITY, f64::min);
     let hi = cs.iter().chain(&gs).cloned().fold(0.0, f64::max);
     let charts = [
         Chart {
