@@ -23,6 +23,7 @@ TIMED = re.compile(r"(wall|_s$|per_s|time_s|cpu_s)")
 VARYING = [
     r"vol_dt_sweep_[^/]*/[^/]*/(time_f32|time_f64|plot_rgb)\.npy$",
     r"selftest_nondeterministic_run_fails/",
+    r"selftest_plant_equal_count_fails/",
 ]
 
 

@@ -12,7 +12,7 @@ use crate::error::{Error, Result};
 use crate::parallel::par_collect;
 use crate::real::Real;
 use crate::rng::rand_f64;
-use crate::tensor::Tensor;
+use crate::tensor::{Outputs, Tensor};
 
 /// Axis-aligned box, closed: a point on a face is inside.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -88,6 +88,27 @@ impl RayGen {
     }
 
     /// The pixel rectangle rays are made for.
+    /// The jittered pixel offsets (x, y in [0, 1)) of every pixel of the
+    /// region, row-major, as `f_ray` draws them; `None` without jitter.
+    pub fn jitter_offsets(&self) -> Option<(Vec<f64>, Vec<f64>)> {
+        let j = self.jitter?;
+        let roi = self.region();
+        let n = roi.width as usize * roi.height as usize;
+        let (mut x, mut y) = (Vec::with_capacity(n), Vec::with_capacity(n));
+        for i in 0..n as u32 {
+            let pixel = (roi.y + i / roi.width) * self.width + roi.x + i % roi.width;
+            x.push(rand_f64(j.seed, pixel, j.sample, 0));
+            y.push(rand_f64(j.seed, pixel, j.sample, 1));
+        }
+        Some((x, y))
+    }
+
+    /// `[height, width]` of the region: the shape of per-pixel outputs.
+    pub fn shape(&self) -> [usize; 2] {
+        let r = self.region();
+        [r.height as usize, r.width as usize]
+    }
+
     pub fn region(&self) -> Roi {
         self.roi.unwrap_or(Roi {
             x: 0,
@@ -226,6 +247,68 @@ impl<F: Real> Rays<F> {
         }
         Ok(r)
     }
+
+    /// The SCENES.md ray outputs, shaped `shape`: o, d, t0, t1, hit (uint8),
+    /// pixel (int32); counters rays, hits.
+    pub fn to_outputs(&self, shape: &[usize], out: &mut Outputs) -> Result<()> {
+        out.tensor("o", Tensor::real3(shape, &self.o)?);
+        out.tensor("d", Tensor::real3(shape, &self.d)?);
+        out.tensor("t0", Tensor::real(shape, self.t0.clone())?);
+        out.tensor("t1", Tensor::real(shape, self.t1.clone())?);
+        let hit: Vec<u8> = (0..self.len()).map(|i| self.hits(i) as u8).collect();
+        let hits = hit.iter().filter(|&&h| h == 1).count() as u64;
+        out.tensor("hit", Tensor::from_shape_vec(shape, hit)?);
+        let pixel: Vec<i32> = self.pixel.iter().map(|&p| p as i32).collect();
+        out.tensor("pixel", Tensor::from_shape_vec(shape, pixel)?);
+        out.counter("rays", self.len() as u64).counter("hits", hits);
+        Ok(())
+    }
+
+    /// Re-clips every ray to `gen`'s box and `[near, far]` (replayed rays).
+    pub fn clip_to(&mut self, gen: &RayGen) {
+        let (bmin, bmax) = (gen.aabb.min.map(F::of), gen.aabb.max.map(F::of));
+        let (near, far) = (F::of(gen.near), F::of(gen.far));
+        for i in 0..self.len() {
+            (self.t0[i], self.t1[i]) = clip_aabb(self.o[i], self.d[i], bmin, bmax, near, far);
+        }
+    }
+}
+
+/// `(t0, t1, hit)` of rays listed as `[ox, oy, oz, dx, dy, dz]` (d
+/// normalised in f64 first) clipped to `b` in precision `F`.
+pub fn clip_list<F: Real>(
+    rays: &[[f64; 6]],
+    b: &Aabb,
+    near: f64,
+    far: f64,
+) -> (Vec<F>, Vec<F>, Vec<u8>) {
+    let (mut t0, mut t1, mut hit) = (vec![], vec![], vec![]);
+    for r in rays {
+        let n = (r[3] * r[3] + r[4] * r[4] + r[5] * r[5]).sqrt();
+        let (o, d) = ([r[0], r[1], r[2]], [r[3] / n, r[4] / n, r[5] / n]);
+        let (a, c) = clip_aabb(
+            o.map(F::of),
+            d.map(F::of),
+            b.min.map(F::of),
+            b.max.map(F::of),
+            F::of(near),
+            F::of(far),
+        );
+        t0.push(a);
+        t1.push(c);
+        hit.push((c > a) as u8);
+    }
+    (t0, t1, hit)
+}
+
+/// Outputs t0, t1, hit of a listed clip ([`clip_list`] or its referee).
+pub fn clip_list_outputs<F: Real>((t0, t1, hit): (Vec<F>, Vec<F>, Vec<u8>)) -> Result<Outputs> {
+    let n = [hit.len()];
+    let mut out = Outputs::default();
+    out.tensor("t0", Tensor::real(&n, t0)?)
+        .tensor("t1", Tensor::real(&n, t1)?);
+    out.tensor("hit", Tensor::from_shape_vec(&n, hit)?);
+    Ok(out)
 }
 
 /// Clips the ray `o + t d` to the closed box, starting from `[near, far]`.

@@ -72,6 +72,18 @@ impl Tensor {
         Tensor::real(&s, v.iter().flatten().copied().collect())
     }
 
+    /// `data` converted to `dtype` (float32, float64, int32 or uint8; `as`
+    /// casts), shaped `shape`; `None` for another dtype name.
+    pub fn from_f64_as(dtype: &str, shape: &[usize], data: Vec<f64>) -> Option<Result<Tensor>> {
+        Some(match dtype {
+            "float32" => Tensor::from_shape_vec(shape, data.iter().map(|&x| x as f32).collect()),
+            "float64" => Tensor::from_shape_vec(shape, data),
+            "int32" => Tensor::from_shape_vec(shape, data.iter().map(|&x| x as i32).collect()),
+            "uint8" => Tensor::from_shape_vec(shape, data.iter().map(|&x| x as u8).collect()),
+            _ => return None,
+        })
+    }
+
     /// A 0-d tensor holding one f64.
     pub fn scalar(x: f64) -> Tensor {
         Tensor::F64(ArrayD::from_elem(IxDyn(&[]), x))
@@ -251,6 +263,15 @@ pub struct Outputs {
 }
 
 impl Outputs {
+    /// Outputs holding `tensors` (no metrics or counters).
+    pub fn of<const N: usize>(tensors: [(&str, Tensor); N]) -> Outputs {
+        let mut out = Outputs::default();
+        for (name, t) in tensors {
+            out.tensor(name, t);
+        }
+        out
+    }
+
     pub fn tensor(&mut self, name: &str, t: impl Into<Tensor>) -> &mut Self {
         self.tensors.insert(name.to_string(), t.into());
         self

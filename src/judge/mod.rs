@@ -9,14 +9,14 @@
 //! | `perf_run.rs` | `hpjudge perf`: scenarios in workers, perf.json |
 //! | `render.rs` | `hpjudge render`: one scene, outside a manifest |
 //! | `frames.rs` | `hpjudge render --all-frames`: every frame of a NeRF camera file |
-//! | `asserts.rs` | the closed set of assertions and their checks |
-//! | `ops/` | the table of operations cases name |
+//! | `asserts/` | the closed set of assertions: one file per kind with its tests |
+//! | `op.rs`, `ops/` | what an operation is; the table of operations cases name (wiring only) |
 //! | `worker.rs` | one case on one backend, in a child process |
 //! | `job.rs` | what the judge hands a worker (stdin), the child process, its deadline |
 //! | `outlock.rs` | the exclusive lock on a run's output folder |
 //! | `runner.rs` | the run: workers, time limits, scoreboard, summary |
 //! | `scoreboard.rs`, `junit.rs`, `artifacts.rs` | what a run writes |
-//! | `measure.rs` | wall and CPU seconds |
+//! | `measure/` | wall and CPU seconds; per-renderer timing harnesses |
 //! | `progress.rs` | progress bars on a terminal only |
 //! | `partition.rs`, `merge.rs` | sharded runs (`--partition K/N`) and `hpjudge merge` |
 //! | `plot.rs` | every plot the judge draws |
@@ -37,6 +37,9 @@ pub mod load;
 pub mod manifest;
 pub mod measure;
 pub mod merge;
+pub mod op;
+#[cfg(test)]
+mod op_tests;
 pub mod ops;
 pub mod outlock;
 pub mod partition;

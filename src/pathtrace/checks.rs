@@ -8,11 +8,13 @@ use serde::Deserialize;
 use statrs::distribution::{ContinuousCDF, Normal};
 
 use crate::camera::RealCamera;
-use crate::error::Result;
+use crate::error::{Error, Result};
 use crate::pathtrace::bsdf::fresnel_dielectric;
+use crate::pathtrace::listed::{unit, HitList, ShapeParam};
+use crate::pathtrace::packed::Packed;
 use crate::pathtrace::referee::bsdf::fresnel_angles;
 use crate::pathtrace::shapes::{intersect, spawn_origin};
-use crate::pathtrace::{Material, Scene, Shape};
+use crate::pathtrace::{Material, Quad, Scene, Shape, Sphere};
 use crate::rng::rand_f32;
 use crate::stats::chi2::{chi2_test, Bins};
 use crate::stats::quadrature::{dir, sphere_quad};
@@ -259,6 +261,91 @@ pub fn region_sum(
         }
     }
     (sum, count)
+}
+
+/// The renderer's intersection of listed rays with listed shapes as
+/// rendering runs it (`Packed`, f32). `at` names the shapes for errors (a
+/// degenerate quad).
+pub fn intersect_listed(rays: &[[f64; 6]], params: &[ShapeParam], at: &str) -> Result<HitList> {
+    let v = |a: [f64; 3]| Vec3A::new(a[0] as f32, a[1] as f32, a[2] as f32);
+    let mut shapes = Vec::with_capacity(params.len());
+    for (i, sp) in params.iter().enumerate() {
+        shapes.push(match *sp {
+            ShapeParam::Sphere { center, radius } => Shape::Sphere(Sphere {
+                centre: v(center),
+                radius: radius as f32,
+            }),
+            ShapeParam::Quad { corner, u, v: e } => Shape::Quad(
+                Quad::new(v(corner), v(u), v(e))
+                    .ok_or_else(|| Error::invalid(format!("{at}[{i}]"), "degenerate quad"))?,
+            ),
+        });
+    }
+    let packed = Packed::new(&shapes);
+    let mut hits = HitList::default();
+    for r in rays {
+        let (o, d) = unit(r);
+        let (o, d) = (v(o), v(d).normalize());
+        hits.push(packed.intersect(o, d, f32::INFINITY).map(|(th, k)| {
+            let (_, n) = shapes[k].surface(o, d, th);
+            (th as f64, k, n.to_array().map(|x| x as f64))
+        }));
+    }
+    Ok(hits)
+}
+
+/// Whether a rough conductor's reflectance reaches both ways a path uses
+/// the material (`eval`, light sampling; `sample`'s weight, BSDF sampling):
+/// for each `wo` polar angle (degrees) and `n` random draws, the sums over
+/// draws of `f` (at a cosine-weighted `wi`) and of the sampled weight with
+/// reflectance `r` and with reflectance 1 on the same random numbers.
+/// Outputs per angle and channel `eval_ratio`, `weight_ratio` (both must
+/// equal r) and `expected` (r).
+pub fn reflectance_applied(
+    thetas: &[f32],
+    n: u32,
+    alpha: f32,
+    r: [f32; 3],
+    seed: u32,
+) -> Result<Outputs> {
+    let with = |refl: Vec3A| Material::RoughConductor {
+        alpha,
+        reflectance: refl,
+    };
+    let (m, one) = (with(Vec3A::from_array(r)), with(Vec3A::ONE));
+    let (mut eval_ratio, mut weight_ratio, mut expected) = (vec![], vec![], vec![]);
+    for (row, &th) in thetas.iter().enumerate() {
+        let t = th.to_radians();
+        let wo = Vec3A::new(t.sin() * 0.4f32.cos(), t.sin() * 0.4f32.sin(), t.cos());
+        // f64 sums: f32 sums of 2e4 terms would differ by rounding alone.
+        let (mut e, mut e1, mut w, mut w1) = ([0.0f64; 3], [0.0f64; 3], [0.0f64; 3], [0.0f64; 3]);
+        let acc = |s: &mut [f64; 3], v: Vec3A| (0..3).for_each(|c| s[c] += v[c] as f64);
+        for i in 0..n {
+            let u = |k| rand_f32(seed ^ 0x5eed, i, row as u32, k);
+            let wi = crate::pathtrace::bsdf::cosine_hemisphere([u(0), u(1)]);
+            acc(&mut e, m.eval(wo, wi));
+            acc(&mut e1, one.eval(wo, wi));
+            let (a, b) = (
+                m.sample(wo, u(2), [u(3), u(4)]),
+                one.sample(wo, u(2), [u(3), u(4)]),
+            );
+            if let (Some(a), Some(b)) = (a, b) {
+                acc(&mut w, a.weight);
+                acc(&mut w1, b.weight);
+            }
+        }
+        for c in 0..3 {
+            eval_ratio.push(e[c] / e1[c]);
+            weight_ratio.push(w[c] / w1[c]);
+            expected.push(r[c] as f64);
+        }
+    }
+    let shape = [thetas.len(), 3];
+    let mut out = Outputs::default();
+    out.tensor("eval_ratio", Tensor::real(&shape, eval_ratio)?);
+    out.tensor("weight_ratio", Tensor::real(&shape, weight_ratio)?);
+    out.tensor("expected", Tensor::real(&shape, expected)?);
+    Ok(out)
 }
 
 #[cfg(test)]

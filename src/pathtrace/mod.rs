@@ -18,6 +18,7 @@ pub mod checks;
 pub mod gpu;
 pub mod integrator;
 pub mod listed;
+pub mod outputs;
 pub mod packed;
 pub mod referee;
 pub mod shapes;

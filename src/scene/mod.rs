@@ -10,6 +10,7 @@ pub mod nerf;
 pub mod pathtrace;
 pub mod rays;
 pub mod transport;
+pub mod transport_refs;
 pub mod volume;
 pub mod volume_hash;
 pub mod voxels;

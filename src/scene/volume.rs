@@ -207,6 +207,21 @@ pub fn parse(doc: &SceneDoc) -> Result<VolumeScene> {
     Ok(VolumeScene { view, spec })
 }
 
+/// The continuum field behind a spec: the analytic field itself, or the one
+/// a grid was sampled `from:` (a grid read from a file has none).
+pub fn continuum(spec: &FieldSpec, at: &str) -> Result<Analytic> {
+    let f = match spec {
+        FieldSpec::Grid { from: Some(f), .. } => f.as_ref(),
+        FieldSpec::Grid { .. } => {
+            return Err(Error::NotSupported(format!(
+                "{at}: no closed form for a grid read from a file"
+            )))
+        }
+        other => other,
+    };
+    analytic(f, at)
+}
+
 /// The analytic field a spec names (a grid spec is an error).
 pub fn analytic(spec: &FieldSpec, at: &str) -> Result<Analytic> {
     Ok(match spec {

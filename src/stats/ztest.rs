@@ -19,6 +19,28 @@ pub struct ZTest {
     pub zero_var_mismatch: usize,
 }
 
+impl ZTest {
+    /// Scalars `p_min`, `sidak_alpha` (Šidák of `alpha` over the tests),
+    /// `z2_mean`, `max_abs_z`, `zero_var_mismatch`; counters `tests`,
+    /// `worst_index`.
+    pub fn to_outputs(&self, alpha: f64, out: &mut crate::tensor::Outputs) {
+        use crate::tensor::Tensor;
+        out.tensor("p_min", Tensor::scalar(self.p_min));
+        out.tensor(
+            "sidak_alpha",
+            Tensor::scalar(super::sidak(alpha, self.tests)),
+        );
+        out.tensor("z2_mean", Tensor::scalar(self.z2_mean));
+        out.tensor("max_abs_z", Tensor::scalar(self.max_abs_z));
+        out.tensor(
+            "zero_var_mismatch",
+            Tensor::scalar(self.zero_var_mismatch as f64),
+        );
+        out.counter("tests", self.tests as u64)
+            .counter("worst_index", self.worst as u64);
+    }
+}
+
 pub fn z_test(a: &[f64], va: &[f64], b: &[f64], vb: &[f64]) -> ZTest {
     use statrs::distribution::{ContinuousCDF, Normal};
     let mut r = ZTest {

@@ -14,15 +14,18 @@
 //! - [`tasks`]: what a scene asks for (deflection lists, observer angle
 //!   scans, GRIN ray lists), fanned out over rays.
 //! - [`gpu`]: the same tasks traced by `kernels/transport.wgsl` (f32).
-//! - [`outputs`]: a traced task as named tensors.
+//! - [`outputs`]: a traced task as named tensors; [`checks`]: observed
+//!   order and drift growth (the integrators against themselves).
 //! - [`referee`]: closed forms and quadratures in f64 that check the above
 //!   and share no code with them.
 
+pub mod checks;
 pub mod disk;
 pub mod gpu;
 pub mod grin;
 pub mod hamiltonian;
 pub mod image;
+pub mod image_checks;
 pub mod integrate;
 pub mod kerr;
 pub mod kerr_trace;

@@ -18,8 +18,9 @@ use std::time::Instant;
 
 use crate::budget::MemBudget;
 use crate::camera::Camera;
-use crate::error::Result;
+use crate::error::{Error, Result};
 use crate::rays::RayGen;
+use crate::tensor::{Outputs, Tensor};
 
 use super::compose::Compose;
 use super::diff::{f_diff, DiffOptions, Reduce, Upstream};
@@ -97,6 +98,56 @@ pub struct FitReport {
     /// Per held-out view.
     pub psnr_held: Vec<f64>,
     pub time_s: f64,
+}
+
+impl FitConfig {
+    /// Refuses sizes out of range (`at` names the parameters): a dense side
+    /// outside 2..=256, no views or held-out views, an image side outside
+    /// 1..=1024, a hash configuration its own check refuses.
+    pub fn validate(&self, at: &str) -> Result<()> {
+        match self.model {
+            Model::Dense { n } if !(2..=256).contains(&n) => {
+                return Err(Error::invalid(
+                    format!("{at}.n"),
+                    format!("{n} is not in 2..=256"),
+                ))
+            }
+            Model::Hash(h) => h.validate(at)?,
+            Model::Dense { .. } => {}
+        }
+        if self.views == 0 || self.held_out == 0 || self.side == 0 || self.side > 1024 {
+            let why = "views, held_out must be >= 1 and side in 1..=1024";
+            return Err(Error::invalid(at, why));
+        }
+        Ok(())
+    }
+}
+
+impl FitReport {
+    /// `loss` (per iteration), `psnr_held` (per held-out view), `loss_drop`
+    /// (first / last), `psnr_held_min`; metrics `psnr_train`,
+    /// `psnr_held_mean`, `psnr_held_min`, `time_s`.
+    pub fn to_outputs(&self) -> Result<Outputs> {
+        let mean = self.psnr_held.iter().sum::<f64>() / self.psnr_held.len() as f64;
+        let min = self.psnr_held.iter().copied().fold(f64::INFINITY, f64::min);
+        let mut out = Outputs::default();
+        out.tensor("loss", Tensor::real(&[self.loss.len()], self.loss.clone())?);
+        out.tensor(
+            "psnr_held",
+            Tensor::real(&[self.psnr_held.len()], self.psnr_held.clone())?,
+        );
+        let last = self.loss.last().copied().unwrap_or(f64::NAN);
+        out.tensor(
+            "loss_drop",
+            Tensor::scalar(self.loss.first().map_or(f64::NAN, |f| f / last)),
+        );
+        out.tensor("psnr_held_min", Tensor::scalar(min));
+        out.metric("psnr_train", self.psnr_train);
+        out.metric("psnr_held_mean", mean)
+            .metric("psnr_held_min", min);
+        out.metric("time_s", self.time_s);
+        Ok(out)
+    }
 }
 
 /// Target density and colour at `x` (module doc).

@@ -7,7 +7,11 @@
 //! where the camera's rays cross, with `rand(seed, q, stream, axis)`; colour
 //! probes also draw a channel.
 
+use crate::rays::RayGen;
+use crate::real::Real;
 use crate::rng::rand_f64;
+
+use super::diff::Upstream;
 
 /// The loss weights of a case, f64, one per ray of the region.
 #[derive(Clone, Debug)]
@@ -15,6 +19,32 @@ pub struct LossWeights {
     pub rgb: Vec<[f64; 3]>,
     pub depth: f64,
     pub opacity: f64,
+}
+
+impl LossWeights {
+    /// `W = rand(seed, pixel, 0, ch) - 0.5` for every pixel of `gen`'s
+    /// region (SCENES.md RNG), no depth or opacity terms.
+    pub fn seeded(gen: &RayGen, seed: u32) -> Vec<[f64; 3]> {
+        let roi = gen.region();
+        let (h, w) = (roi.height as usize, roi.width as usize);
+        (0..h * w)
+            .map(|i| {
+                let (u, v) = (roi.x + (i % w) as u32, roi.y + (i / w) as u32);
+                let px = v * gen.width + u;
+                [0, 1, 2].map(|ch| rand_f64(seed, px, 0, ch) - 0.5)
+            })
+            .collect()
+    }
+
+    /// `f_diff`'s upstream gradient for this loss, in precision `F`.
+    pub fn upstream<F: Real>(&self) -> Upstream<F> {
+        let n = self.rgb.len();
+        Upstream {
+            rgb: self.rgb.iter().map(|c| c.map(F::of)).collect(),
+            depth: (self.depth != 0.0).then(|| vec![F::of(self.depth); n]),
+            opacity: (self.opacity != 0.0).then(|| vec![F::of(self.opacity); n]),
+        }
+    }
 }
 
 /// How many grid nodes to probe (`params.probes`).

@@ -26,6 +26,7 @@ pub mod grad_outputs;
 pub mod integrate;
 pub mod loss;
 pub mod occupancy;
+pub mod outputs;
 pub mod referee;
 pub mod sample;
 

@@ -3,10 +3,57 @@
 //! kernel's per-ray results (`crate::gpu::voxels`, `kernels/voxels.wgsl`)
 //! in the renderer's [`VoxelHits`] conventions.
 
-use crate::gpu::voxels::{GpuCastParams, GpuVoxelHit};
+use crate::budget::MemBudget;
+use crate::camera::Camera;
+use crate::error::Result;
+use crate::gpu::voxels::{GpuCast, GpuCastParams, GpuOctree, GpuVoxelHit};
+use crate::rays::RayGen;
 
+use super::batch::Batch;
 use super::cast::CastParams;
 use super::render::VoxelHits;
+
+/// The camera's rays cast on the GPU (generated there; read back into the
+/// returned batch when `keep_rays`), over `gen`'s `[near, far]`.
+pub fn cast_camera(
+    g: &GpuOctree,
+    (cam, gen): (&Camera, &RayGen),
+    p: &CastParams,
+    keep_rays: bool,
+    budget: &MemBudget,
+) -> Result<(GpuCast, Batch<f32>)> {
+    let cast = g.cast_camera(cam, gen, &gpu_params(p), keep_rays, budget)?;
+    let (o, d) = cast
+        .rays
+        .iter()
+        .map(|r| ([r[0], r[1], r[2]], [r[3], r[4], r[5]]))
+        .unzip();
+    let shape = gen.shape().to_vec();
+    let b = Batch {
+        o,
+        d,
+        shape,
+        near: gen.near,
+        far: gen.far,
+        kind: None,
+    };
+    Ok((cast, b))
+}
+
+/// A batch's rays uploaded and cast on the GPU.
+pub fn cast_batch(
+    g: &GpuOctree,
+    b: &Batch<f32>,
+    p: &CastParams,
+    budget: &MemBudget,
+) -> Result<GpuCast> {
+    let packed: Vec<[f32; 6]> =
+        b.o.iter()
+            .zip(&b.d)
+            .map(|(o, d)| [o[0], o[1], o[2], d[0], d[1], d[2]])
+            .collect();
+    g.cast_rays(&packed, &gpu_params(p), budget)
+}
 
 /// `p` in the kernel's f32: near and far as `F::of` rounds them (far
 /// clamped to `f32::MAX`, a bound no ray reaches in the unit box), the LOD

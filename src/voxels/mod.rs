@@ -5,7 +5,9 @@
 //! names their tensors. Seeds 001 and
 //! 003; SCENES.md "Sparse voxels" fixes voxel indexing and outputs.
 
+pub mod batch;
 pub mod cast;
+pub mod checks;
 pub mod contour;
 pub mod dag;
 pub mod gpu;
@@ -13,6 +15,7 @@ pub mod octree;
 pub mod outputs;
 pub mod raysets;
 pub mod referee;
+pub mod referee_bounds;
 pub mod referee_dag;
 pub mod render;
 pub mod shape;

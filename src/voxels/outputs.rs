@@ -3,8 +3,10 @@
 use crate::error::Result;
 use crate::real::Real;
 use crate::tensor::{Outputs, Tensor};
+use crate::voxels::batch::Batch;
+use crate::voxels::dag::Dag;
 use crate::voxels::octree::Octree;
-use crate::voxels::render::{shade, VoxelHits};
+use crate::voxels::render::{shade, RefereeHits, VoxelHits};
 
 fn with_3(shape: &[usize]) -> Vec<usize> {
     let mut s = shape.to_vec();
@@ -83,4 +85,57 @@ pub fn build_metrics(out: &mut Outputs, tree: &Octree) {
         .counter("descriptors", s.descriptors)
         .counter("far_slots", s.far_slots);
     out.counter("leaves", s.leaves);
+}
+
+/// The DAG's counters and build time, beside an octree's.
+pub fn dag_metrics(out: &mut Outputs, g: &Dag) {
+    let s = &g.stats;
+    out.counter("dag_nodes", s.nodes)
+        .counter("dag_slots", s.slots)
+        .counter("dag_bytes", s.bytes);
+    out.metric("dag_build_s", s.build_s);
+}
+
+impl RefereeHits {
+    /// The hits (as [`put_hits`], without the image) and the tie flags:
+    /// `tie`, `near_tie`, their complements `untied`, `clear`; counters
+    /// `ties`, `near_ties`.
+    pub fn to_outputs(self, shape: &[usize], depth: u32, out: &mut Outputs) -> Result<()> {
+        out.counter("ties", self.tie.iter().map(|&x| x as u64).sum());
+        out.counter("near_ties", self.near_tie.iter().map(|&x| x as u64).sum());
+        let untied: Vec<u8> = self.tie.iter().map(|&x| 1 - x).collect();
+        let clear: Vec<u8> = self.near_tie.iter().map(|&x| 1 - x).collect();
+        out.tensor("tie", Tensor::from_shape_vec(shape, self.tie)?);
+        out.tensor("near_tie", Tensor::from_shape_vec(shape, self.near_tie)?);
+        out.tensor("untied", Tensor::from_shape_vec(shape, untied)?);
+        out.tensor("clear", Tensor::from_shape_vec(shape, clear)?);
+        put_hits(out, self.hits, shape, depth, false)
+    }
+}
+
+impl<F: Real> Batch<F> {
+    /// A cast of this batch as SCENES.md outputs (as [`put_hits`], with the
+    /// image; `kind` for hard rays; `rays` (N, 9) when `dump`), metrics
+    /// `cast_s` (= `secs`), `mrays_per_s`, counters `rays`, `hits`.
+    pub fn cast_outputs(
+        self,
+        h: VoxelHits<F>,
+        (secs, hits): (f64, u64),
+        depth: u32,
+        dump: bool,
+        out: &mut Outputs,
+    ) -> Result<()> {
+        let n = self.o.len() as u64;
+        if dump {
+            out.tensor("rays", self.to_rays().to_tensor()?);
+        }
+        out.metric("cast_s", secs)
+            .metric("mrays_per_s", n as f64 / secs.max(1e-12) / 1e6);
+        out.counter("rays", n).counter("hits", hits);
+        put_hits(out, h, &self.shape, depth, true)?;
+        if let Some(k) = self.kind {
+            out.tensor("kind", Tensor::from_shape_vec(&self.shape, k)?);
+        }
+        Ok(())
+    }
 }

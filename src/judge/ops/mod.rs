@@ -1,202 +1,48 @@
 //! The judge's one table of operations. A manifest case names an operation
 //! (`rays.generate`, `volume.forward`, ...); the worker looks it up here and
-//! calls it with an [`OpCtx`]. Adding a renderer adds rows (one file per
-//! renderer below) and touches nothing else in the judge.
-//!
-//! An operation turns a scene and parameters into named tensors, metrics and
-//! counters ([`Outputs`]); assertions judge those. Operations that compute an
-//! independent reference (a closed form, an f64 quadrature, a DDA referee)
-//! are rows too, so the runner never re-implements math.
+//! calls it with an [`OpCtx`] (`judge/op.rs`: what an operation is). Each
+//! file below holds one renderer's rows in an `ops!` table and one short
+//! function per row: scene and parameters in, a renderer, referee or
+//! harness call, its `Outputs` back. Conversions to tensors live on the
+//! renderers' result types, referees beside their renderer, timing in
+//! `judge::measure`. Template: `rays.rs`.
 
 /// `f::<f32>(args)` or `f::<f64>(args)` by the case's precision: the one
 /// place an operation picks its float type.
 macro_rules! by_precision {
-    ($ctx:expr, $f:ident ( $($arg:expr),* $(,)? )) => {
+    ($ctx:expr, $($f:ident)::+ ( $($arg:expr),* $(,)? )) => {
         match $ctx.precision {
-            $crate::real::Precision::F32 => $f::<f32>($($arg),*),
-            $crate::real::Precision::F64 => $f::<f64>($($arg),*),
+            $crate::real::Precision::F32 => $($f)::+::<f32>($($arg),*),
+            $crate::real::Precision::F64 => $($f)::+::<f64>($($arg),*),
         }
     };
 }
 
+/// An op file's table: one row per operation, `"name" Support run
+/// ["param", ...] "doc";` (the columns of [`OpEntry`]).
+macro_rules! ops {
+    ($($name:literal $support:ident $run:ident [$($p:literal),*] $doc:literal;)*) => {
+        pub const OPS: &[$crate::judge::ops::OpEntry] = &[$($crate::judge::ops::OpEntry {
+            name: $name,
+            doc: $doc,
+            params: &[$($p),*],
+            support: $crate::judge::ops::Support::$support,
+            run: $run,
+        }),*];
+    };
+}
+
 mod pathtrace;
-mod pathtrace_bsdf;
-mod pathtrace_gpu;
 mod rays;
 mod selftest;
 mod transport;
-mod transport_gpu;
-mod transport_kerr;
 mod volume;
 mod volume_diff;
 mod volume_fit;
 mod volume_hash;
 mod voxels;
-mod voxels_contour;
-mod voxels_dag;
-mod voxels_gpu;
 
-use std::path::{Path, PathBuf};
-
-use serde::de::DeserializeOwned;
-use serde::{Deserialize, Serialize};
-use serde_yaml::Value;
-
-use crate::budget::MemBudget;
-use crate::error::{Error, Result};
-use crate::real::Precision;
-use crate::scene::{from_value, SceneDoc};
-use crate::tensor::{Outputs, Tensor};
-
-/// Where an operation runs.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize, Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum BackendKind {
-    Cpu,
-    Gpu,
-}
-
-impl BackendKind {
-    pub fn name(self) -> &'static str {
-        match self {
-            BackendKind::Cpu => "cpu",
-            BackendKind::Gpu => "gpu",
-        }
-    }
-}
-
-/// Everything an operation may read. Built by the judge's worker (or by
-/// `hpjudge render`) from the case, the scene and the command line.
-pub struct OpCtx<'a> {
-    /// The case id (or `render`).
-    pub case_id: &'a str,
-    /// The scene, after the case's and the command line's overrides.
-    pub scene: Option<&'a SceneDoc>,
-    /// The case's `params:` mapping (`Value::Null` when absent).
-    pub params: &'a Value,
-    pub backend: BackendKind,
-    pub precision: Precision,
-    /// Run seed (`--seed`), for operations that draw random numbers.
-    pub seed: u32,
-    pub budget: MemBudget,
-    /// `--dump-failing` re-run: add per-ray tensors (rays, per-ray buffers).
-    pub dump: bool,
-    /// Rays to replay instead of camera rays (`render --rays FILE`).
-    pub rays: Option<&'a Tensor>,
-    /// Folder of the manifest or scene that named this run, for relative paths.
-    pub root: &'a Path,
-}
-
-impl<'a> OpCtx<'a> {
-    /// The scene, or an error saying this operation needs one.
-    pub fn scene(&self) -> Result<&'a SceneDoc> {
-        self.scene
-            .ok_or_else(|| Error::invalid(self.case_id, "this operation needs a `scene:`"))
-    }
-
-    /// Parameter `key` of the case's `params:`, typed; `None` when absent.
-    pub fn param<T: DeserializeOwned>(&self, key: &str) -> Result<Option<T>> {
-        match self.params.get(key) {
-            None | Some(Value::Null) => Ok(None),
-            Some(v) => from_value(v, &format!("{} params.{key}", self.case_id)).map(Some),
-        }
-    }
-
-    /// Parameter `key`, or `default` when absent.
-    pub fn param_or<T: DeserializeOwned>(&self, key: &str, default: T) -> Result<T> {
-        Ok(self.param(key)?.unwrap_or(default))
-    }
-
-    /// Parameter `key`, required.
-    pub fn param_req<T: DeserializeOwned>(&self, key: &str) -> Result<T> {
-        self.param(key)?.ok_or_else(|| {
-            Error::invalid(
-                format!("{} params", self.case_id),
-                format!("missing `{key}`"),
-            )
-        })
-    }
-
-    /// A path relative to [`OpCtx::root`].
-    pub fn resolve(&self, p: &str) -> PathBuf {
-        self.root.join(p)
-    }
-}
-
-/// The backends and precisions an operation runs in. The manifest loader
-/// (and `hpjudge check`) refuses any other combination before anything runs;
-/// [`OpEntry::call`] refuses it again for direct calls (`hpjudge render`).
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Support {
-    /// The CPU, in f32 and f64 (no GPU kernel yet).
-    Cpu,
-    /// The CPU in f32 and f64, the GPU in f32.
-    CpuGpuF32,
-    /// The GPU in f32 only (a parity or bench operation that runs the CPU
-    /// beside the GPU itself).
-    GpuF32,
-    /// Any backend and precision: the operation computes the same either
-    /// way (a reference in f64 on the CPU, a table, a planted self-test).
-    Any,
-}
-
-impl Support {
-    /// Whether `backend` in `precision` is supported.
-    pub fn allows(self, backend: BackendKind, precision: Precision) -> bool {
-        match self {
-            Support::Cpu => backend == BackendKind::Cpu,
-            Support::CpuGpuF32 => backend == BackendKind::Cpu || precision == Precision::F32,
-            Support::GpuF32 => backend == BackendKind::Gpu && precision == Precision::F32,
-            Support::Any => true,
-        }
-    }
-
-    /// For messages and `hpjudge list --ops`.
-    pub fn describe(self) -> &'static str {
-        match self {
-            Support::Cpu => "cpu f32/f64",
-            Support::CpuGpuF32 => "cpu f32/f64, gpu f32",
-            Support::GpuF32 => "gpu f32",
-            Support::Any => "any backend and precision",
-        }
-    }
-}
-
-/// One row of the table.
-pub struct OpEntry {
-    /// `renderer.operation`.
-    pub name: &'static str,
-    /// One line for `hpjudge list --ops`.
-    pub doc: &'static str,
-    /// Parameter keys the operation reads (unknown keys are refused on load).
-    pub params: &'static [&'static str],
-    /// Backends and precisions it runs in.
-    pub support: Support,
-    pub run: fn(&OpCtx) -> Result<Outputs>,
-}
-
-impl OpEntry {
-    /// `None` when this operation runs on `backend` in `precision`, else why not.
-    pub fn refuses(&self, backend: BackendKind, precision: Precision) -> Option<String> {
-        (!self.support.allows(backend, precision)).then(|| {
-            format!(
-                "{} does not run on {} in {} (it runs: {})",
-                self.name,
-                backend.name(),
-                precision.name(),
-                self.support.describe()
-            )
-        })
-    }
-
-    /// Runs the operation, refusing an unsupported backend or precision.
-    pub fn call(&self, ctx: &OpCtx) -> Result<Outputs> {
-        if let Some(why) = self.refuses(ctx.backend, ctx.precision) {
-            return Err(Error::NotSupported(format!("{}: {why}", ctx.case_id)));
-        }
-        (self.run)(ctx)
-    }
-}
+pub use super::op::{BackendKind, OpCtx, OpEntry, Support};
 
 /// Every operation, in table order.
 pub fn table() -> impl Iterator<Item = &'static OpEntry> {
@@ -207,15 +53,8 @@ pub fn table() -> impl Iterator<Item = &'static OpEntry> {
         volume_hash::OPS,
         volume_fit::OPS,
         pathtrace::OPS,
-        pathtrace_gpu::OPS,
-        pathtrace_bsdf::OPS,
         transport::OPS,
-        transport_kerr::OPS,
-        transport_gpu::OPS,
         voxels::OPS,
-        voxels_dag::OPS,
-        voxels_contour::OPS,
-        voxels_gpu::OPS,
         selftest::OPS,
     ]
     .into_iter()

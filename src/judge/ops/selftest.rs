@@ -5,82 +5,23 @@
 //! runaway loop (TIMEOUT); an unsupported backend (SKIP); and a good output
 //! (PASS) so that a judge failing everything is caught too.
 
-use super::{OpCtx, OpEntry, Support};
+use super::OpCtx;
 use crate::error::{Error, Result};
 use crate::tensor::{Outputs, Tensor};
 
-pub const OPS: &[OpEntry] = &[
-    OpEntry {
-        name: "selftest.good",
-        doc: "a finite image, monotone t, good offsets",
-        params: &[],
-        support: Support::Any,
-        run: good,
-    },
-    OpEntry {
-        name: "selftest.nan_image",
-        doc: "an image with one NaN",
-        params: &[],
-        support: Support::Any,
-        run: nan_image,
-    },
-    OpEntry {
-        name: "selftest.non_monotone",
-        doc: "t that goes back within a ray",
-        params: &[],
-        support: Support::Any,
-        run: non_monotone,
-    },
-    OpEntry {
-        name: "selftest.broken_offsets",
-        doc: "offsets that decrease and miss M",
-        params: &[],
-        support: Support::Any,
-        run: broken_offsets,
-    },
-    OpEntry {
-        name: "selftest.nondeterministic",
-        doc: "an output that changes every execution",
-        params: &[],
-        support: Support::Any,
-        run: nondeterministic,
-    },
-    OpEntry {
-        name: "selftest.gradient",
-        doc: "grad of sum(x^2) (optionally sign-flipped) and its central differences",
-        params: &["flip"],
-        support: Support::Any,
-        run: gradient,
-    },
-    OpEntry {
-        name: "selftest.panic",
-        doc: "panics",
-        params: &[],
-        support: Support::Any,
-        run: panics,
-    },
-    OpEntry {
-        name: "selftest.abort",
-        doc: "aborts the process",
-        params: &[],
-        support: Support::Any,
-        run: aborts,
-    },
-    OpEntry {
-        name: "selftest.hang",
-        doc: "never returns",
-        params: &[],
-        support: Support::Any,
-        run: hangs,
-    },
-    OpEntry {
-        name: "selftest.unsupported",
-        doc: "reports NotSupported",
-        params: &[],
-        support: Support::Any,
-        run: unsupported,
-    },
-];
+ops! {
+    "selftest.good" Any good [] "a finite image, monotone t, good offsets";
+    "selftest.nan_image" Any nan_image [] "an image with one NaN";
+    "selftest.non_monotone" Any non_monotone [] "t that goes back within a ray";
+    "selftest.broken_offsets" Any broken_offsets [] "offsets that decrease and miss M";
+    "selftest.nondeterministic" Any nondeterministic [] "an output that changes every execution";
+    "selftest.gradient" Any gradient ["flip"]
+        "grad of sum(x^2) (optionally sign-flipped) and its central differences";
+    "selftest.panic" Any panics [] "panics";
+    "selftest.abort" Any aborts [] "aborts the process";
+    "selftest.hang" Any hangs [] "never returns";
+    "selftest.unsupported" Any unsupported [] "reports NotSupported";
+}
 
 fn image(nan: bool) -> Result<Tensor> {
     let mut v: Vec<f32> = (0..4 * 4 * 3).map(|i| i as f32 / 48.0).collect();

@@ -1,121 +1,55 @@
-//! Operations of the volume backward pass (`f_diff`, issue 4) and its
-//! independent references.
-//!
-//! | op | what |
-//! | --- | --- |
-//! | `volume.grad` | `f_diff` of the scene for an upstream `W` (seeded, constant or a file): dsigma / dcolor (grid nodes), dsigma_param / dcolor_const (analytic, constant colour), dcam, probe values, per-sample grads |
-//! | `volume.grad_fd` | FD referee, f64: central differences of `L = sum W . rgb (+ w_depth depth + w_opacity opacity)` at the same seeded probes, every pose component, every analytic parameter |
-//! | `volume.grad_closed_form` | closed forms: constant and slab densities (`dC/dsigma_i = L_i e^-tau (c - b)`), constant colour, the Gaussian blob's continuum pose gradient |
-//! | `volume.grad_perf` | grads/s, backward/forward time ratio, bytes per sample, fused and unfused |
+//! Operations of the volume backward pass (`f_diff`) and its referees:
+//! finite differences (`volume::referee::finite_diff`, f64, early stop and
+//! skipping off) and closed forms (`volume::referee::closed_form`).
 //!
 //! The loss is `L = sum_p W_p . rgb_p + w_depth sum_p depth_p + w_opacity
-//! sum_p opacity_p`. `W` is `params.w_const` everywhere, else
-//! `rand(w_seed, pixel, 0, ch) - 0.5` (SCENES.md RNG), or read from
-//! `params.grad_from` ((H, W, 3) float32/float64 .npy).
-//!
-//! Probes (`params.probes: {sigma: n, color: n, seed: s}`): grid nodes drawn
-//! from the middle half of each axis, where the camera's rays cross, with
-//! `rand(seed, q, stream, axis)`; colour probes also draw a channel. The
-//! referee and `volume.grad` draw the same probes from the same rule.
-//!
-//! The referee (`volume::referee::finite_diff`) never calls `volume::diff`
-//! (a test there says so): it differences the forward render
-//! (fused, f64, early stop and skipping off), judged by the forward cases.
+//! sum_p opacity_p` (`volume::loss`). `W` is `params.w_const` everywhere,
+//! else `rand(w_seed, pixel, 0, ch) - 0.5`, or read from `params.grad_from`
+//! ((H, W, 3) float32/float64 .npy). Probes (`params.probes: {sigma: n,
+//! color: n, seed: s}`) are grid nodes drawn by `volume::loss::probe_nodes`,
+//! the same rule on both sides.
 
 use std::path::Path;
-use std::time::Instant;
 
-use super::{OpCtx, OpEntry, Support};
+use super::OpCtx;
 use crate::camera::Camera;
 use crate::error::{Error, Result};
+use crate::judge::measure::volume as measure;
 use crate::rays::{f_ray, RayGen};
 use crate::real::{Precision, Real};
-use crate::rng::rand_f64;
-use crate::stats::summary::median;
 use crate::tensor::{Outputs, Tensor};
-use crate::volume::compose::Compose;
-use crate::volume::diff::{f_diff, DiffOptions, Reduce, Upstream, DEFAULT_CHUNKS};
+use crate::volume::diff::{f_diff, DiffOptions, Reduce, DEFAULT_CHUNKS};
 use crate::volume::field::{ColorDesc, FieldDesc};
 use crate::volume::grad_outputs::grad_outputs;
 use crate::volume::loss::{LossWeights, ProbeSpec, MAX_PROBES};
 use crate::volume::referee::closed_form::grad_closed_form;
 use crate::volume::referee::finite_diff::grad_fd;
-use crate::volume::{render, Chain, VolumeParams};
+use crate::volume::{Chain, VolumeParams};
 
-const GRAD_PARAMS: &[&str] = &[
-    "chain",
-    "reduce",
-    "chunks",
-    "per_sample",
-    "probes",
-    "w_seed",
-    "w_const",
-    "w_depth",
-    "w_opacity",
-    "grad_from",
-];
-
-pub const OPS: &[OpEntry] = &[
-    OpEntry {
-        name: "volume.grad",
-        doc: "f_diff: dsigma, dcolor (grid nodes), dsigma_param, dcolor_const, dcam, dsigma_probe, dcolor_probe; params chain fused|unfused, reduce sorted|chunked",
-        params: GRAD_PARAMS,
-        support: Support::Cpu,
-        run: op_grad,
-    },
-    OpEntry {
-        name: "volume.grad_fd",
-        doc: "FD referee (f64 central differences, early stop and skipping off): dsigma_probe, dcolor_probe, dsigma_param, dcolor_const, dcam",
-        params: &[
-            "probes",
-            "w_seed",
-            "w_const",
-            "w_depth",
-            "w_opacity",
-            "grad_from",
-            "h_sigma",
-            "h_color",
-            "h_pose",
-        ],
-        support: Support::Any,
-        run: op_grad_fd,
-    },
-    OpEntry {
-        name: "volume.grad_closed_form",
-        doc: "closed-form gradients: dsigma_param (constant, slabs), dcolor_const, dcam (gaussian blob, continuum)",
-        params: &["w_seed", "w_const"],
-        support: Support::Any,
-        run: op_grad_closed_form,
-    },
-    OpEntry {
-        name: "volume.grad_perf",
-        doc: "backward medians: grads_per_s, bwd_fwd_ratio, unfused_grads_per_s, bytes_per_sample_fused/unfused",
-        params: &["repeats", "chunks"],
-        support: Support::Cpu,
-        run: op_grad_perf,
-    },
-];
+ops! {
+    "volume.grad" Cpu op_grad ["chain", "reduce", "chunks", "per_sample", "probes", "w_seed", "w_const", "w_depth",
+        "w_opacity", "grad_from"]
+        "f_diff: dsigma, dcolor (grid nodes), dsigma_param, dcolor_const, dcam, dsigma_probe, dcolor_probe; params chain fused|unfused, reduce sorted|chunked";
+    "volume.grad_fd" Any op_grad_fd ["probes", "w_seed", "w_const", "w_depth", "w_opacity", "grad_from", "h_sigma",
+        "h_color", "h_pose"]
+        "FD referee (f64 central differences, early stop and skipping off): dsigma_probe, dcolor_probe, dsigma_param, dcolor_const, dcam";
+    "volume.grad_closed_form" Any op_grad_closed_form ["w_seed", "w_const"]
+        "closed-form gradients: dsigma_param (constant, slabs), dcolor_const, dcam (gaussian blob, continuum)";
+    "volume.grad_perf" Cpu op_grad_perf ["repeats", "chunks"]
+        "backward medians: grads_per_s, bwd_fwd_ratio, unfused_grads_per_s, bytes_per_sample_fused/unfused";
+}
 
 fn load(ctx: &OpCtx) -> Result<(Camera, RayGen, VolumeParams)> {
     let doc = ctx.scene()?;
     crate::scene::volume::parse(doc)?.build(doc)
 }
 
-fn at(ctx: &OpCtx, key: &str) -> String {
-    format!("{} params.{key}", ctx.case_id)
-}
-
-// ---------------------------------------------------------------------------
-// The loss.
-
-/// The loss weights of a case (`volume::loss`), one per ray of the region.
+/// The loss weights of a case (module doc), one per ray of the region.
 pub(super) fn loss_weights(ctx: &OpCtx, gen: &RayGen) -> Result<LossWeights> {
-    let roi = gen.region();
-    let (h, w) = (roi.height as usize, roi.width as usize);
+    let [h, w] = gen.shape();
     let rgb = if let Some(p) = ctx.param::<String>("grad_from")? {
-        let direct = Path::new(&p);
-        let path = if direct.is_file() {
-            direct.to_path_buf()
+        let path = if Path::new(&p).is_file() {
+            p.into()
         } else {
             ctx.resolve(&p)
         };
@@ -123,34 +57,22 @@ pub(super) fn loss_weights(ctx: &OpCtx, gen: &RayGen) -> Result<LossWeights> {
             Tensor::read_npy_checked(&path, &["float32", "float64"], &[Some(h), Some(w), Some(3)])?;
         let v = t.to_f64_vec();
         if let Some(i) = v.iter().position(|x| !x.is_finite()) {
-            return Err(Error::invalid(
-                path.display().to_string(),
-                format!("value at flat index {i} is not finite"),
-            ));
+            let why = format!("value at flat index {i} is not finite");
+            return Err(Error::invalid(path.display().to_string(), why));
         }
         v.chunks(3).map(|c| [c[0], c[1], c[2]]).collect()
     } else if let Some(c) = ctx.param::<f64>("w_const")? {
         if !c.is_finite() {
-            return Err(Error::invalid(at(ctx, "w_const"), "must be finite"));
+            return Err(ctx.bad("w_const", "must be finite"));
         }
         vec![[c; 3]; h * w]
     } else {
-        let seed: u32 = ctx.param_or("w_seed", 1)?;
-        (0..h * w)
-            .map(|i| {
-                let (u, v) = (roi.x + (i % w) as u32, roi.y + (i / w) as u32);
-                let px = v * gen.width + u;
-                [0, 1, 2].map(|ch| rand_f64(seed, px, 0, ch) - 0.5)
-            })
-            .collect()
+        LossWeights::seeded(gen, ctx.param_or("w_seed", 1)?)
     };
     let depth: f64 = ctx.param_or("w_depth", 0.0)?;
     let opacity: f64 = ctx.param_or("w_opacity", 0.0)?;
     if !(depth.is_finite() && opacity.is_finite()) {
-        return Err(Error::invalid(
-            at(ctx, "w_depth/w_opacity"),
-            "must be finite",
-        ));
+        return Err(ctx.bad("w_depth/w_opacity", "must be finite"));
     }
     Ok(LossWeights {
         rgb,
@@ -159,67 +81,44 @@ pub(super) fn loss_weights(ctx: &OpCtx, gen: &RayGen) -> Result<LossWeights> {
     })
 }
 
-/// `f_diff`'s upstream gradient for the loss `w`.
-pub(super) fn upstream<F: Real>(w: &LossWeights) -> Upstream<F> {
-    let n = w.rgb.len();
-    Upstream {
-        rgb: w.rgb.iter().map(|c| c.map(F::of)).collect(),
-        depth: (w.depth != 0.0).then(|| vec![F::of(w.depth); n]),
-        opacity: (w.opacity != 0.0).then(|| vec![F::of(w.opacity); n]),
-    }
+/// `params.chain` (fused | unfused), `reduce` (sorted | chunked, `chunks`)
+/// and `per_sample`.
+pub(super) fn options(ctx: &OpCtx) -> Result<DiffOptions> {
+    let chain = match ctx.param_or::<String>("chain", "fused".into())?.as_str() {
+        "fused" => Chain::Fused,
+        "unfused" => Chain::Unfused,
+        o => return Err(ctx.bad("chain", format!("{o:?} is not fused or unfused"))),
+    };
+    let chunks: u32 = ctx.param_or("chunks", DEFAULT_CHUNKS)?;
+    let reduce = match ctx.param_or::<String>("reduce", "sorted".into())?.as_str() {
+        "sorted" => Reduce::Sorted,
+        "chunked" => Reduce::Chunked { chunks },
+        o => return Err(ctx.bad("reduce", format!("{o:?} is not sorted or chunked"))),
+    };
+    let per_sample = ctx.param_or("per_sample", false)?;
+    Ok(DiffOptions {
+        chain,
+        reduce,
+        per_sample,
+    })
 }
-
-// ---------------------------------------------------------------------------
-// Probes.
 
 fn probe_spec(ctx: &OpCtx) -> Result<ProbeSpec> {
     let p: ProbeSpec = ctx.param_or("probes", ProbeSpec::default())?;
     if p.sigma > MAX_PROBES || p.color > MAX_PROBES {
-        return Err(Error::invalid(
-            at(ctx, "probes"),
+        return Err(ctx.bad(
+            "probes",
             format!("at most {MAX_PROBES} probes of each kind"),
         ));
     }
     Ok(p)
 }
 
-// ---------------------------------------------------------------------------
-// volume.grad
-
-fn options(ctx: &OpCtx) -> Result<DiffOptions> {
-    let chain = match ctx.param_or::<String>("chain", "fused".into())?.as_str() {
-        "fused" => Chain::Fused,
-        "unfused" => Chain::Unfused,
-        o => {
-            return Err(Error::invalid(
-                at(ctx, "chain"),
-                format!("{o:?} is not fused or unfused"),
-            ))
-        }
-    };
-    let chunks: u32 = ctx.param_or("chunks", DEFAULT_CHUNKS)?;
-    let reduce = match ctx.param_or::<String>("reduce", "sorted".into())?.as_str() {
-        "sorted" => Reduce::Sorted,
-        "chunked" => Reduce::Chunked { chunks },
-        o => {
-            return Err(Error::invalid(
-                at(ctx, "reduce"),
-                format!("{o:?} is not sorted or chunked"),
-            ))
-        }
-    };
-    Ok(DiffOptions {
-        chain,
-        reduce,
-        per_sample: ctx.param_or("per_sample", false)?,
-    })
-}
-
 fn grad_in<F: Real>(ctx: &OpCtx, opt: DiffOptions) -> Result<Outputs> {
     let (cam, gen, p) = load(ctx)?;
     let w = loss_weights(ctx, &gen)?;
     let probes = probe_spec(ctx)?;
-    let g = f_diff::<F>(&cam, &gen, &p, &upstream(&w), &opt, None, &ctx.budget)?;
+    let g = f_diff::<F>(&cam, &gen, &p, &w.upstream(), &opt, None, &ctx.budget)?;
     let mut out = Outputs::default();
     grad_outputs(&g, &p, &probes, &mut out)?;
     let rays = gen.region().width as f64 * gen.region().height as f64;
@@ -232,99 +131,75 @@ fn op_grad(ctx: &OpCtx) -> Result<Outputs> {
     by_precision!(ctx, grad_in(ctx, opt))
 }
 
-/// `volume.render` with `params.grad_from` (the `hpjudge render --grad-from`
-/// path): the forward outputs plus dsigma / dcolor (grid fields), dcam, and
-/// for analytic fields per-sample (`dsigma_samples`, `dcolor_samples`) and
-/// per-parameter gradients. Hooked from `volume.render` in `ops/volume.rs`.
+/// `volume.render` with `params.grad_from` (`hpjudge render --grad-from`):
+/// adds dsigma / dcolor (grid fields), dcam, and for analytic fields
+/// per-sample (`dsigma_samples`, `dcolor_samples`) and per-parameter
+/// gradients to the forward outputs.
 pub fn render_grads(ctx: &OpCtx, out: &mut Outputs) -> Result<()> {
     if ctx.param::<String>("grad_from")?.is_none() {
         return Ok(());
     }
     if ctx.rays.is_some() {
-        return Err(Error::NotSupported(
-            "render --grad-from with --rays: gradients need camera rays (dcam)".into(),
-        ));
+        let why = "render --grad-from with --rays: gradients need camera rays (dcam)";
+        return Err(Error::NotSupported(why.into()));
     }
     let (cam, gen, p) = load(ctx)?;
     let w = loss_weights(ctx, &gen)?;
     let analytic = matches!(p.field, FieldDesc::Analytic(_));
+    let chain = if analytic {
+        Chain::Unfused
+    } else {
+        Chain::Fused
+    };
     let opt = DiffOptions {
-        chain: if analytic {
-            Chain::Unfused
-        } else {
-            Chain::Fused
-        },
+        chain,
         reduce: Reduce::Sorted,
         per_sample: analytic,
     };
     let none = ProbeSpec::default();
     match ctx.precision {
         Precision::F32 => {
-            let g = f_diff::<f32>(&cam, &gen, &p, &upstream(&w), &opt, None, &ctx.budget)?;
+            let g = f_diff::<f32>(&cam, &gen, &p, &w.upstream(), &opt, None, &ctx.budget)?;
             grad_outputs(&g, &p, &none, out)
         }
         Precision::F64 => {
-            let g = f_diff::<f64>(&cam, &gen, &p, &upstream(&w), &opt, None, &ctx.budget)?;
+            let g = f_diff::<f64>(&cam, &gen, &p, &w.upstream(), &opt, None, &ctx.budget)?;
             grad_outputs(&g, &p, &none, out)
         }
     }
 }
-
-// ---------------------------------------------------------------------------
-// volume.grad_fd: the finite-difference referee (`volume::referee::finite_diff`).
 
 fn op_grad_fd(ctx: &OpCtx) -> Result<Outputs> {
     let (cam, gen, p) = load(ctx)?;
     let w = loss_weights(ctx, &gen)?;
     let probes = probe_spec(ctx)?;
-    let h_sigma: f64 = ctx.param_or("h_sigma", 1e-4)?;
-    let h_color: f64 = ctx.param_or("h_color", 1e-3)?;
-    let h_pose: f64 = ctx.param_or("h_pose", 1e-6)?;
-    for (k, h) in [
-        ("h_sigma", h_sigma),
-        ("h_color", h_color),
-        ("h_pose", h_pose),
-    ] {
-        if !(h.is_finite() && h > 0.0 && h < 1.0) {
-            return Err(Error::invalid(at(ctx, k), format!("{h} is not in (0, 1)")));
+    let mut h = [0.0f64; 3];
+    for (i, (k, d)) in [("h_sigma", 1e-4), ("h_color", 1e-3), ("h_pose", 1e-6)]
+        .into_iter()
+        .enumerate()
+    {
+        h[i] = ctx.param_or(k, d)?;
+        if !(h[i].is_finite() && h[i] > 0.0 && h[i] < 1.0) {
+            return Err(Error::invalid(
+                ctx.at(k),
+                format!("{} is not in (0, 1)", h[i]),
+            ));
         }
     }
-    grad_fd(
-        &cam,
-        &gen,
-        &p,
-        &w,
-        &probes,
-        [h_sigma, h_color, h_pose],
-        &ctx.budget,
-    )
+    grad_fd(&cam, &gen, &p, &w, &probes, h, &ctx.budget)
 }
-
-// ---------------------------------------------------------------------------
-// volume.grad_closed_form
 
 fn op_grad_closed_form(ctx: &OpCtx) -> Result<Outputs> {
     let (cam, gen, p) = load(ctx)?;
     let w = loss_weights(ctx, &gen)?;
-    let c = match p.color {
-        ColorDesc::Constant(c) => c,
-        ColorDesc::Grid(_) | ColorDesc::Mlp => {
-            return Err(Error::NotSupported(format!(
-                "{}: closed-form gradients need a constant colour",
-                ctx.case_id
-            )))
-        }
-    };
-    let FieldDesc::Analytic(a) = &p.field else {
-        return Err(Error::NotSupported(format!(
-            "{}: closed-form gradients need an analytic field",
-            ctx.case_id
-        )));
+    let (ColorDesc::Constant(c), FieldDesc::Analytic(a)) = (&p.color, &p.field) else {
+        let why = "closed-form gradients need an analytic field and a constant colour";
+        return Err(Error::NotSupported(format!("{}: {why}", ctx.case_id)));
     };
     let rays = f_ray::<f64>(&cam, &gen, &ctx.budget)?;
     grad_closed_form(
         a,
-        c,
+        *c,
         p.background,
         &rays,
         cam.c2w(),
@@ -334,69 +209,15 @@ fn op_grad_closed_form(ctx: &OpCtx) -> Result<Outputs> {
     )
 }
 
-// ---------------------------------------------------------------------------
-// volume.grad_perf
-
 fn perf_in<F: Real>(ctx: &OpCtx) -> Result<Outputs> {
     let (cam, gen, p) = load(ctx)?;
     let repeats: usize = ctx.param_or("repeats", 3)?;
     let chunks: u32 = ctx.param_or("chunks", DEFAULT_CHUNKS)?;
     if repeats == 0 || repeats > 100 {
-        return Err(Error::invalid(at(ctx, "repeats"), "must be in 1..=100"));
+        return Err(ctx.bad("repeats", "must be in 1..=100"));
     }
-    let w = upstream::<F>(&loss_weights(ctx, &gen)?);
-    let fused = DiffOptions {
-        chain: Chain::Fused,
-        reduce: Reduce::Chunked { chunks },
-        per_sample: false,
-    };
-    let fused_sorted = DiffOptions {
-        reduce: Reduce::Sorted,
-        ..fused
-    };
-    let unfused = DiffOptions {
-        chain: Chain::Unfused,
-        reduce: Reduce::Sorted,
-        per_sample: false,
-    };
-    let (mut tf, mut tb, mut tbs, mut tu) = (vec![], vec![], vec![], vec![]);
-    let (mut samples, mut bf, mut bu) = (0, 0, 0);
-    let fwd = crate::volume::diff::forward_buffers::<F>(&gen, &cam, &p, &ctx.budget)?;
-    for _ in 0..repeats {
-        let t = Instant::now();
-        let r = render::<F>(&cam, &gen, &p, Chain::Fused, Compose::Sorted, &ctx.budget)?;
-        tf.push(t.elapsed().as_secs_f64());
-        samples = r.counters.samples;
-        let g = f_diff::<F>(&cam, &gen, &p, &w, &fused, None, &ctx.budget)?;
-        tb.push(g.time_s);
-        bf = g.bytes_per_sample;
-        let g = f_diff::<F>(&cam, &gen, &p, &w, &fused_sorted, None, &ctx.budget)?;
-        tbs.push(g.time_s);
-        let g = f_diff::<F>(&cam, &gen, &p, &w, &unfused, Some(&fwd), &ctx.budget)?;
-        tu.push(g.time_s);
-        bu = g.bytes_per_sample;
-    }
-    let (tf, tb, tbs, tu) = (
-        median(&mut tf),
-        median(&mut tb),
-        median(&mut tbs),
-        median(&mut tu),
-    );
-    let s = samples as f64;
-    let mut out = Outputs::default();
-    out.metric("forward_time_s", tf);
-    out.metric("time_s", tb);
-    out.metric("grads_per_s", s / tb);
-    out.metric("bwd_fwd_ratio", tb / tf);
-    out.metric("sorted_time_s", tbs);
-    out.metric("sorted_grads_per_s", s / tbs);
-    out.metric("unfused_time_s", tu);
-    out.metric("unfused_grads_per_s", s / tu);
-    out.metric("bytes_per_sample_fused", bf as f64);
-    out.metric("bytes_per_sample_unfused", bu as f64);
-    out.metric("threads", rayon::current_num_threads() as f64);
-    out.counter("samples", samples);
-    Ok(out)
+    let w = loss_weights(ctx, &gen)?.upstream::<F>();
+    measure::backward::<F>(&cam, &gen, &p, &w, chunks, repeats, &ctx.budget)
 }
 
 fn op_grad_perf(ctx: &OpCtx) -> Result<Outputs> {

@@ -21,6 +21,7 @@ mod analytic;
 mod grid;
 pub mod hash;
 mod hash_grad;
+mod hash_outputs;
 
 pub use analytic::Analytic;
 pub use grid::{floor_i64, fmax, fmin, Grid, GridDesc};
@@ -57,6 +58,20 @@ pub enum ColorDesc {
     Grid(GridDesc),
     /// The colour head of a `hash_mlp` density (valid with that field only).
     Mlp,
+}
+
+impl ColorDesc {
+    /// The colour when it is the same everywhere (a constant, or a grid of
+    /// equal nodes), else `None`.
+    pub fn uniform(&self) -> Option<[f64; 3]> {
+        match self {
+            ColorDesc::Constant(c) => Some(*c),
+            ColorDesc::Grid(g) if g.data.chunks(3).all(|v| v == &g.data[..3]) => {
+                Some([g.data[0], g.data[1], g.data[2]])
+            }
+            ColorDesc::Grid(_) | ColorDesc::Mlp => None,
+        }
+    }
 }
 
 impl FieldDesc {

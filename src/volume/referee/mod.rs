@@ -7,6 +7,7 @@
 //! | `closed_form.rs` | optical depths of the analytic fields; closed-form gradients | descriptions only |
 //! | `finite_diff.rs` | central differences of the forward render (checks `f_diff`) | the forward render, never `diff` |
 //! | `hash.rs` | the hash-grid encoding and MLP written directly in f64 (checks `field/hash.rs`) | the hash field's description |
+//! | `hash_probes.rs` | probe points and parameters of the hash cases; the referee's encoding with collisions; central differences of `hash.rs` and of the render | `hash.rs`, `finite_diff.rs`, descriptions |
 //!
 //! Descriptions are the parameter types (`VolumeParams`, `FieldDesc`,
 //! `Analytic`, `ColorDesc`, `GridDesc`, `Sampling`, ...), the rays, the RNG
@@ -15,6 +16,7 @@
 pub mod closed_form;
 pub mod finite_diff;
 pub mod hash;
+pub mod hash_probes;
 pub mod quadrature;
 
 #[cfg(test)]
@@ -62,6 +64,21 @@ mod tests {
         ]);
         assert_eq!(
             foreign_paths(include_str!("hash.rs"), &allowed),
+            Vec::<String>::new()
+        );
+    }
+
+    #[test]
+    fn hash_probes_use_the_referees_beside_them_and_descriptions_only() {
+        let mut allowed = DESCRIPTIONS.to_vec();
+        allowed.extend([
+            "crate::volume::field::hash::HashMlpDesc",
+            "crate::camera::Camera",
+            "crate::budget::MemBudget",
+            "crate::parallel::par_collect",
+        ]);
+        assert_eq!(
+            foreign_paths(include_str!("hash_probes.rs"), &allowed),
             Vec::<String>::new()
         );
     }

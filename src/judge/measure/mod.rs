@@ -1,6 +1,14 @@
 //! Measuring: wall and CPU seconds of a call. On a shared machine the wall
 //! clock counts time other jobs held the cores; CPU time does not, so rates
 //! per CPU second are the figures to compare.
+//!
+//! Per renderer, the timing harnesses the perf operations wire (repeats,
+//! medians, CPU seconds): `volume.rs`, `pathtrace.rs`, `voxels.rs`.
+
+pub mod pathtrace;
+pub mod transport;
+pub mod volume;
+pub mod voxels;
 
 use std::time::Instant;
 

@@ -1,0 +1,191 @@
+//! Timing harnesses of the voxel casts: the octree against the referee,
+//! the octree against the DAG, the CPU against the GPU, each on coherent
+//! (camera) and incoherent ray sets in one run. Rates are Mrays per second
+//! and per CPU second (/proc, 10 ms ticks).
+
+use super::timed;
+use crate::budget::MemBudget;
+use crate::camera::Camera;
+use crate::error::Result;
+use crate::gpu::voxels::GpuOctree;
+use crate::rays::RayGen;
+use crate::real::Real;
+use crate::tensor::Outputs;
+use crate::voxels::batch::Batch;
+use crate::voxels::cast::{CastParams, CastReal};
+use crate::voxels::dag::Dag;
+use crate::voxels::gpu::gpu_params;
+use crate::voxels::octree::Octree;
+use crate::voxels::render::{cast_all, cast_all_dag, referee_all, VoxelHits};
+use crate::voxels::shape::Shape;
+
+fn per_cpu_s(n: f64, cpu: f64) -> f64 {
+    if cpu > 0.0 {
+        n / cpu / 1e6
+    } else {
+        0.0
+    }
+}
+
+fn mean(v: impl Iterator<Item = f64>) -> f64 {
+    let (s, n) = v.fold((0.0, 0usize), |(s, n), x| (s + x, n + 1));
+    s / n.max(1) as f64
+}
+
+/// The octree cast and the referee (on every `stride`-th ray of the same
+/// set) per named batch: `<name>_mrays_per_s` (and per core, per CPU
+/// second), hit fraction, mean iterations, `referee_<name>_*` and
+/// `<name>_speedup_vs_referee`.
+pub fn octree_vs_referee<F: CastReal>(
+    tree: &Octree,
+    (shape, depth): (&Shape, u32),
+    batches: [(&str, &Batch<F>); 2],
+    params: impl Fn(&Batch<F>) -> CastParams,
+    stride: usize,
+    out: &mut Outputs,
+) {
+    let threads = rayon::current_num_threads() as f64;
+    for (name, b) in batches {
+        let p = params(b);
+        let (h, wall, cpu) = timed(|| cast_all::<F>(tree, &b.o, &b.d, &p));
+        let n = b.o.len() as f64;
+        let rate = n / wall.max(1e-12) / 1e6;
+        out.metric(&format!("{name}_mrays_per_s"), rate);
+        out.metric(&format!("{name}_mrays_per_s_per_core"), rate / threads);
+        out.metric(&format!("{name}_mrays_per_cpu_s"), per_cpu_s(n, cpu));
+        let hits = h.hit.iter().map(|&x| x as f64).sum::<f64>();
+        out.metric(&format!("{name}_hit_fraction"), hits / n);
+        out.metric(
+            &format!("{name}_mean_iters"),
+            h.iters.iter().map(|&x| x as f64).sum::<f64>() / n,
+        );
+        let (o, d) = b.widen();
+        let (o, d): (Vec<_>, Vec<_>) = o.into_iter().zip(d).step_by(stride).unzip();
+        let (r, rwall, rcpu) = timed(|| referee_all(shape, depth, &o, &d, b.near, b.far, 0.0));
+        let m = r.tie.len() as f64;
+        let rrate = m / rwall.max(1e-12) / 1e6;
+        out.metric(&format!("referee_{name}_mrays_per_s"), rrate);
+        out.metric(
+            &format!("referee_{name}_mrays_per_cpu_s"),
+            per_cpu_s(m, rcpu),
+        );
+        out.metric(
+            &format!("{name}_speedup_vs_referee"),
+            rate / rrate.max(1e-12),
+        );
+    }
+}
+
+/// Rays that differ between two casts in hit, t, leaf or normal (bitwise).
+fn differing<F: Real>(a: &VoxelHits<F>, b: &VoxelHits<F>) -> u64 {
+    (0..a.hit.len())
+        .filter(|&i| {
+            a.hit[i] != b.hit[i]
+                || a.t[i].f64().to_bits() != b.t[i].f64().to_bits()
+                || a.leaf[i] != b.leaf[i]
+                || a.normal[i] != b.normal[i]
+        })
+        .count() as u64
+}
+
+/// Octree against DAG casts of the same rays in `repeats` alternating
+/// rounds (both see the same machine load): `<name>_octree_mrays_per_cpu_s`,
+/// `<name>_dag_mrays_per_cpu_s`, `<name>_dag_over_octree`, counter
+/// `<name>_differing_rays`.
+pub fn octree_vs_dag<F: CastReal>(
+    tree: &Octree,
+    g: &Dag,
+    batches: [(&str, &Batch<F>); 2],
+    params: impl Fn(&Batch<F>) -> CastParams,
+    repeats: u32,
+    out: &mut Outputs,
+) {
+    for (name, b) in batches {
+        let p = params(b);
+        let (mut a, mut c) = (VoxelHits::default(), VoxelHits::default());
+        let (mut ca, mut cb) = (0.0, 0.0);
+        for _ in 0..repeats {
+            let (h, _, t) = timed(|| cast_all::<F>(tree, &b.o, &b.d, &p));
+            (a, ca) = (h, ca + t);
+            let (h, _, t) = timed(|| cast_all_dag::<F>(g, &b.o, &b.d, &p));
+            (c, cb) = (h, cb + t);
+        }
+        let n = b.o.len() as f64 * repeats as f64;
+        out.metric(&format!("{name}_octree_mrays_per_cpu_s"), per_cpu_s(n, ca));
+        out.metric(&format!("{name}_dag_mrays_per_cpu_s"), per_cpu_s(n, cb));
+        out.metric(
+            &format!("{name}_dag_over_octree"),
+            if cb > 0.0 { ca / cb } else { 0.0 },
+        );
+        out.counter(&format!("{name}_differing_rays"), differing(&a, &c));
+    }
+}
+
+/// The CPU per-ray cast and the GPU cast of one octree in one run:
+/// coherent = `cam` over `gen` (the GPU generates its rays, the CPU casts
+/// `coh`, `f_ray::<f32>`'s), incoherent = `inc` (the same rays on both).
+/// GPU seconds are submit to readback after one warm-up batch of each entry
+/// (lavapipe compiles on first dispatch).
+#[allow(clippy::too_many_arguments)]
+pub fn cpu_vs_gpu(
+    tree: &Octree,
+    g: &GpuOctree,
+    (cam, gen): (&Camera, &RayGen),
+    coh: &Batch<f32>,
+    inc: &Batch<f32>,
+    params: impl Fn(&Batch<f32>) -> CastParams,
+    budget: &MemBudget,
+    out: &mut Outputs,
+) -> Result<()> {
+    let (p_coh, p_inc) = (params(coh), params(inc));
+    let packed: Vec<[f32; 6]> = inc
+        .o
+        .iter()
+        .zip(&inc.d)
+        .map(|(o, d)| [o[0], o[1], o[2], d[0], d[1], d[2]])
+        .collect();
+    g.cast_rays(&packed[..packed.len().min(64)], &gpu_params(&p_inc), budget)?;
+    let mut warm = gen.clone();
+    let side = gen.width;
+    warm.roi = Some(crate::rays::Roi {
+        x: 0,
+        y: 0,
+        width: 8.min(side),
+        height: 8.min(side),
+    });
+    g.cast_camera(cam, &warm, &gpu_params(&p_coh), false, budget)?;
+    for (name, b, p) in [("coherent", coh, p_coh), ("incoherent", inc, p_inc)] {
+        let (h, wall, cpu) = timed(|| cast_all::<f32>(tree, &b.o, &b.d, &p));
+        let n = b.o.len() as f64;
+        out.metric(
+            &format!("cpu_{name}_mrays_per_s"),
+            n / wall.max(1e-12) / 1e6,
+        );
+        out.metric(&format!("cpu_{name}_mrays_per_cpu_s"), per_cpu_s(n, cpu));
+        out.metric(
+            &format!("{name}_mean_iters"),
+            mean(h.iters.iter().map(|&x| x as f64)),
+        );
+        let gc = if name == "coherent" {
+            g.cast_camera(cam, gen, &gpu_params(&p), false, budget)?
+        } else {
+            g.cast_rays(&packed, &gpu_params(&p), budget)?
+        };
+        let m = gc.hits.len() as f64;
+        let rate = m / gc.gpu_s.max(1e-12) / 1e6;
+        out.metric(&format!("gpu_{name}_mrays_per_s"), rate);
+        out.metric(
+            &format!("gpu_{name}_mean_iters"),
+            mean(gc.hits.iter().map(|h| h.iters as f64)),
+        );
+        out.metric(
+            &format!("{name}_node_bytes_per_ray"),
+            4.0 * mean(gc.hits.iter().map(|h| h.loads() as f64)),
+        );
+        out.metric(
+            &format!("{name}_gpu_over_cpu"),
+            rate / (n / wall.max(1e-12) / 1e6).max(1e-12),
+        );
+    }
+    Ok(())
+}

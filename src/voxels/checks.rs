@@ -1,0 +1,197 @@
+//! Harnesses that run the casts against the referees: the contour error
+//! against the analytic sphere (`referee_bounds::ball_entry`) and the GPU
+//! cast's differences from the CPU cast judged by the exact DDA
+//! (`referee::referee`). The judge's voxels ops wire scenes to these.
+
+use crate::error::Result;
+use crate::gpu::voxels::GpuCast;
+use crate::rays::Rays;
+use crate::tensor::{Outputs, Tensor};
+
+use super::batch::Batch;
+use super::cast::{CastParams, CastReal};
+use super::contour::decode;
+use super::gpu::hits_from_gpu;
+use super::octree::Octree;
+use super::outputs::put_hits;
+use super::referee::referee;
+use super::referee_bounds::ball_entry;
+use super::render::{cast_all, cast_all_contours, VoxelHits};
+use super::shape::Shape;
+
+/// Max and 99th percentile (nearest rank) of `v` (0, 0 when empty).
+fn max_p99(mut v: Vec<f64>) -> (f64, f64) {
+    if v.is_empty() {
+        return (0.0, 0.0);
+    }
+    v.sort_by(f64::total_cmp);
+    let k = ((0.99 * v.len() as f64).ceil() as usize).clamp(1, v.len()) - 1;
+    (v[v.len() - 1], v[k])
+}
+
+/// The batch cast with cubes and with contours `cs` (a sphere of `radius`
+/// at `depth`): `t` error of each against the analytic sphere
+/// (`cube_err_max`, `cube_err_p99`, `contour_err_max`, `contour_err_p99`,
+/// world units, over rays that meet the sphere and hit in both casts); per
+/// ray `box_excess` (how far the contour hit lies outside its voxel's box)
+/// and `slab_excess` (outside its slab), in voxel edges, 0 without a
+/// contour hit; the contour cast's `t` and `hit`.
+pub fn contour_error<F: CastReal>(
+    tree: &Octree,
+    cs: &[u32],
+    b: &Batch<F>,
+    p: &CastParams,
+    radius: f64,
+    depth: u32,
+) -> Result<Outputs> {
+    let cube = cast_all::<F>(tree, &b.o, &b.d, p);
+    let (con, used) = cast_all_contours::<F>(tree, cs, &b.o, &b.d, p);
+    let s = 2.0 / (1u64 << depth) as f64;
+    let n = b.o.len();
+    let (mut e_cube, mut e_con) = (Vec::new(), Vec::new());
+    let mut box_excess = vec![0.0f64; n];
+    let mut slab_excess = vec![0.0f64; n];
+    for i in 0..n {
+        let o = b.o[i].map(|x| x.f64());
+        let d = b.d[i].map(|x| x.f64());
+        let l = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
+        let exact = ball_entry(o, d.map(|x| x / l), radius, b.near).map(|t| t / l);
+        if let Some(te) = exact {
+            if cube.hit[i] == 1 && con.hit[i] == 1 {
+                e_cube.push((cube.t[i].f64() - te).abs());
+                e_con.push((con.t[i].f64() - te).abs());
+            }
+        }
+        if con.hit[i] == 1 && used[i] != 0 {
+            let t = con.t[i].f64();
+            let x = [0, 1, 2].map(|a| o[a] + t * d[a]);
+            let lo = con.leaf[i].map(|v| -1.0 + v as f64 * s);
+            box_excess[i] = (0..3)
+                .map(|a| (lo[a] - x[a]).max(x[a] - lo[a] - s).max(0.0) / s)
+                .fold(0.0, f64::max);
+            let (nn, pp, hh) = decode::<f64>(used[i]);
+            let f = (0..3)
+                .map(|a| nn[a] * (x[a] - lo[a] - 0.5 * s))
+                .sum::<f64>()
+                / s;
+            slab_excess[i] = ((f - pp).abs() - hh).max(0.0);
+        }
+    }
+    let (cmax, cp99) = max_p99(e_cube);
+    let (kmax, kp99) = max_p99(e_con);
+    let mut out = Outputs::default();
+    for (name, v) in [
+        ("cube_err_max", cmax),
+        ("cube_err_p99", cp99),
+        ("contour_err_max", kmax),
+        ("contour_err_p99", kp99),
+    ] {
+        out.metric(name, v);
+        out.tensor(name, Tensor::scalar(v));
+    }
+    out.metric("voxel_size", s);
+    out.counter(
+        "contour_hits",
+        used.iter().filter(|&&v| v != 0).count() as u64,
+    );
+    out.counter("contours", cs.iter().filter(|&&v| v != 0).count() as u64);
+    out.tensor("box_excess", Tensor::from_shape_vec(&b.shape, box_excess)?);
+    out.tensor(
+        "slab_excess",
+        Tensor::from_shape_vec(&b.shape, slab_excess)?,
+    );
+    out.tensor("t", Tensor::real(&b.shape, con.t)?);
+    out.tensor("hit", Tensor::from_shape_vec(&b.shape, con.hit)?);
+    Ok(out)
+}
+
+/// The GPU cast `g` of batch `b` against the CPU f32 cast of the same rays
+/// (with the kernel's iteration cap, so a capped ray is capped on both):
+/// the GPU's hits, the CPU's as `cpu_*`, `excused` / `not_excused` (see
+/// [`excused`]), `identical_frac` (scalar and metric), counters `rays`,
+/// `differ`, `excused`, `unexcused`, `gpu_capped`, `cpu_capped`; `rays`
+/// (N, 9) when `dump`.
+#[allow(clippy::too_many_arguments)]
+pub fn gpu_parity(
+    tree: &Octree,
+    g: &GpuCast,
+    b: &Batch<f32>,
+    p: &CastParams,
+    scene: (&Shape, u32),
+    margin: f64,
+    case: &str,
+    dump: bool,
+) -> Result<Outputs> {
+    let p = CastParams {
+        max_iter: g.max_iter,
+        ..*p
+    };
+    let cpu = cast_all::<f32>(tree, &b.o, &b.d, &p);
+    let gpu = hits_from_gpu(&g.hits);
+    let n = gpu.hit.len();
+    let (excused, differ) = excused(&gpu, &cpu, (&b.o, &b.d), scene, &p, margin, case);
+    let nex = excused.iter().map(|&x| x as u64).sum::<u64>();
+    let mut out = Outputs::default();
+    out.counter("rays", n as u64)
+        .counter("differ", differ as u64);
+    out.counter("excused", nex)
+        .counter("unexcused", differ as u64 - nex);
+    out.counter("gpu_capped", gpu.capped)
+        .counter("cpu_capped", cpu.capped);
+    let identical = 1.0 - differ as f64 / n.max(1) as f64;
+    out.metric("identical_frac", identical);
+    out.tensor("identical_frac", Tensor::scalar(identical));
+    let not_excused: Vec<u8> = excused.iter().map(|&x| 1 - x).collect();
+    out.tensor("excused", Tensor::from_shape_vec(&b.shape, excused)?);
+    out.tensor(
+        "not_excused",
+        Tensor::from_shape_vec(&b.shape, not_excused)?,
+    );
+    if dump {
+        let rays = Rays {
+            o: b.o.clone(),
+            d: b.d.clone(),
+            t0: vec![p.near as f32; n],
+            t1: vec![(p.far as f32).min(1e30); n],
+            pixel: (0..n as u32).collect(),
+        };
+        out.tensor("rays", rays.to_tensor()?);
+    }
+    put_hits(&mut out, gpu, &b.shape, scene.1, false)?;
+    let mut c = Outputs::default();
+    put_hits(&mut c, cpu, &b.shape, scene.1, false)?;
+    for (k, v) in c.tensors {
+        out.tensor(&format!("cpu_{k}"), v);
+    }
+    Ok(out)
+}
+
+/// Per ray: 1 where the GPU and CPU leaves differ and the referee flags the
+/// ray as a tie or as within `margin` world units of a voxel boundary (an
+/// excused difference), else 0; unexcused differences are logged. Also the
+/// number of rays that differ.
+fn excused(
+    gpu: &VoxelHits<f32>,
+    cpu: &VoxelHits<f32>,
+    (o, d): (&[[f32; 3]], &[[f32; 3]]),
+    (shape, depth): (&Shape, u32),
+    p: &CastParams,
+    margin: f64,
+    case: &str,
+) -> (Vec<u8>, usize) {
+    let n = gpu.hit.len();
+    let differ: Vec<usize> = (0..n).filter(|&i| gpu.leaf[i] != cpu.leaf[i]).collect();
+    let mut excused = vec![0u8; n];
+    for &i in &differ {
+        let w = |v: [f32; 3]| v.map(|x| x as f64);
+        let f = referee(shape, depth, w(o[i]), w(d[i]), p.near, p.far, margin);
+        excused[i] = (f.tie || f.near_tie) as u8;
+        if excused[i] == 0 {
+            eprintln!(
+                "{case}: ray {i} o={:?} d={:?}: gpu leaf {:?} cpu leaf {:?} (referee {:?})",
+                o[i], d[i], gpu.leaf[i], cpu.leaf[i], f.voxel
+            );
+        }
+    }
+    (excused, differ.len())
+}
