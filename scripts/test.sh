@@ -3,7 +3,10 @@
 # then the full judge suite with every GPU case required to run. On a machine
 # without a Vulkan adapter it installs Mesa's software driver (lavapipe) first
 # (scripts/gpu_setup.sh). The last line printed is the judge's summary,
-# `N passed, N failed, N skipped`. Exit status: non-zero if anything failed.
+# `N passed, N failed, N skipped` (repeated after the run's HTML report is
+# checked in headless Chromium: scripts/report_check.sh, which installs
+# Debian's chromium when missing and writes the screenshot out/suite/report.png).
+# Exit status: non-zero if anything failed.
 # The workspace's second package, capi/ (the C ABI), is tested by the same
 # cargo test: its C program and its Python example (numpy installed here when
 # missing) against hpjudge render.
@@ -40,4 +43,11 @@ cargo test --release --workspace
 
 echo "== hpjudge run TESTS/manifest.yaml --require-gpu"
 mkdir -p out/suite
-"$hpjudge" run TESTS/manifest.yaml --out out/suite --junit out/suite/junit.xml --require-gpu
+status=0
+"$hpjudge" run TESTS/manifest.yaml --out out/suite --junit out/suite/junit.xml --require-gpu \
+    | tee out/suite.log || status=1
+
+echo "== hpjudge report out/suite (checked in headless Chromium)"
+scripts/report_check.sh out/suite || status=1
+tail -n 1 out/suite.log
+exit "$status"

@@ -5,15 +5,13 @@ Renders TESTS/scenes/schwarzschild_deflection.yaml with 1000 rays (the 8
 SCENES.md impact parameters repeated 125 times, one thread) for each tier and step/tolerance
 setting, and compares the deflections with the finite-distance quadrature
 (transport.deflection_finite, f64; values below, printed by that op). Prints a
-markdown table and writes a log-log PNG (no plotting library needed).
+markdown table and writes a log-log PNG with axes and a legend (`hpjudge plot`).
 
 Usage: scripts/transport_speed_error.py HPJUDGE OUT_PNG
 """
-import struct
 import subprocess
 import sys
 import tempfile
-import zlib
 from pathlib import Path
 
 import numpy as np
@@ -47,34 +45,17 @@ def render(hp, integrator, precision, reps=3):
     return best
 
 
-def png(path, series, w=640, h=420):
-    """Log-log scatter (x = error, y = s per 1000 rays) with one colour per series."""
-    img = np.full((h, w, 3), 255, np.uint8)
-    pts = [(np.log10(max(e, 1e-16)), np.log10(t)) for _, _, rows in series for (_, t, e, _) in rows]
-    x0, x1 = min(p[0] for p in pts) - 0.3, max(p[0] for p in pts) + 0.3
-    y0, y1 = min(p[1] for p in pts) - 0.2, max(p[1] for p in pts) + 0.2
-    px = lambda x: int(40 + (x - x0) / (x1 - x0) * (w - 60))
-    py = lambda y: int(h - 30 - (y - y0) / (y1 - y0) * (h - 50))
-    img[h - 30, 40:w - 20] = 0
-    img[20:h - 30, 40] = 0
-    for dec in range(int(np.floor(x0)), int(np.ceil(x1)) + 1):
-        if x0 <= dec <= x1:
-            img[h - 34:h - 26, px(dec)] = 0
-    colours = [(200, 30, 30), (30, 120, 200), (30, 160, 60), (150, 60, 180), (230, 140, 20), (90, 90, 90)]
-    for (name, prec, rows), col in zip(series, colours):
-        prev = None
-        for (_, t, e, _) in rows:
-            cx, cy = px(np.log10(max(e, 1e-16))), py(np.log10(t))
-            img[max(cy - 3, 0):cy + 4, max(cx - 3, 0):cx + 4] = col
-            if prev:
-                n = max(abs(cx - prev[0]), abs(cy - prev[1]), 1)
-                for k in range(n):
-                    img[int(prev[1] + (cy - prev[1]) * k / n), int(prev[0] + (cx - prev[0]) * k / n)] = col
-            prev = (cx, cy)
-    raw = b"".join(b"\x00" + img[r].tobytes() for r in range(h))
-    chunk = lambda t, d: struct.pack(">I", len(d)) + t + d + struct.pack(">I", zlib.crc32(t + d) & 0xFFFFFFFF)
-    Path(path).write_bytes(b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", struct.pack(">IIBBBBB", w, h, 8, 2, 0, 0, 0))
-                           + chunk(b"IDAT", zlib.compress(raw, 9)) + chunk(b"IEND", b""))
+def plot(hp, path, series):
+    """Log-log chart (x = error, y = s per 1000 rays), one series per tier, drawn by `hpjudge plot`."""
+    import json
+    chart = {"title": "transport: integrator tiers, speed against error", "x_label": "max deflection error",
+             "y_label": "seconds per 1000 rays", "log_x": True, "log_y": True,
+             "series": [{"name": f"{name} {prec}", "xs": [max(e, 1e-16) for (_, _, e, _) in rows],
+                         "ys": [t for (_, t, _, _) in rows]} for name, prec, rows in series]}
+    with tempfile.NamedTemporaryFile("w", suffix=".json", delete=False) as f:
+        json.dump(chart, f)
+    subprocess.run([hp, "plot", f.name, "-o", path], check=True, capture_output=True)
+    Path(f.name).unlink()
 
 
 def main():
@@ -89,7 +70,7 @@ def main():
             rows.append((v, t, e, s))
             print(f"| {name} | {prec} | {fmt % v} | {t:.3g} | {e:.2e} | {s} |", flush=True)
         series.append((name, prec, rows))
-    png(out, series)
+    plot(hp, out, series)
 
 
 if __name__ == "__main__":

@@ -5,6 +5,8 @@
 //! along -Z, +Y up, +X right. Pixel (u, v) has its centre at (u + 0.5, v + 0.5),
 //! v counting rows from the top.
 
+pub mod nerf;
+
 use crate::error::{Error, Result};
 use crate::real::Real;
 

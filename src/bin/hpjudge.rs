@@ -10,10 +10,12 @@ use clap::{Parser, Subcommand};
 
 use hotpath::budget::{parse_size, MemBudget};
 use hotpath::error::Error;
-use hotpath::judge::artifacts::write_tensor;
+use hotpath::judge::artifacts::{write_png, write_tensor};
+use hotpath::judge::junit::to_junit;
 use hotpath::judge::load::JudgeInputError;
 use hotpath::judge::manifest::Manifest;
 use hotpath::judge::ops::{self, BackendKind};
+use hotpath::judge::partition::{parse_partition, Partition};
 use hotpath::judge::perf::{
     compare, missing_or_errored, read_pair, validate_compare_args, Change, ScenarioResult,
 };
@@ -22,6 +24,7 @@ use hotpath::judge::runner::{self, load_inputs, print_summary, BackendFilter, Ru
 use hotpath::judge::scoreboard::Verdict;
 use hotpath::judge::worker;
 use hotpath::judge::{env, perf_run};
+use hotpath::judge::{frames, merge, plot, progress, report};
 use hotpath::real::Precision;
 
 /// hpjudge: runs hotpath's renderers on declarative cases and judges them.
@@ -63,6 +66,12 @@ enum Cmd {
     Compare(CompareArgs),
     /// Rewrite the goldens (GOLDENS/) of the selected cases from their outputs. Refused when CI is set.
     Bless(BlessArgs),
+    /// Merge the scoreboards of a sharded run (`run --partition K/N`) into one.
+    Merge(MergeArgs),
+    /// Write OUT_DIR/report.html: one static page of a run's verdicts, images and plots.
+    Report(ReportArgs),
+    /// Draw a chart (YAML or JSON: title, x_label, y_label, log_x, log_y, series) as PNG or SVG.
+    Plot(PlotArgs),
     /// (internal) Run one case or perf scenario; used by `run` and `perf`.
     #[command(hide = true)]
     Worker(WorkerArgs),
@@ -102,6 +111,40 @@ struct RunArgs {
     /// thresholds.yaml (default: found in the manifest's folder or above).
     #[arg(long)]
     thresholds: Option<PathBuf>,
+    /// Run only shard K of N (cases assigned by a hash of their id; see `merge`).
+    #[arg(long, value_name = "K/N", value_parser = parse_partition)]
+    partition: Option<Partition>,
+}
+
+#[derive(clap::Args, Debug)]
+struct MergeArgs {
+    /// The shards' scoreboard.json files, one per shard.
+    #[arg(required = true)]
+    boards: Vec<PathBuf>,
+    /// Where to write the merged scoreboard.
+    #[arg(short = 'o', long)]
+    out: PathBuf,
+    /// Also write JUnit XML here.
+    #[arg(long)]
+    junit: Option<PathBuf>,
+}
+
+#[derive(clap::Args, Debug)]
+struct ReportArgs {
+    /// A run's output folder (holding scoreboard.json).
+    out_dir: PathBuf,
+    /// Where to write the page (default OUT_DIR/report.html).
+    #[arg(short = 'o', long)]
+    output: Option<PathBuf>,
+}
+
+#[derive(clap::Args, Debug)]
+struct PlotArgs {
+    /// The chart, YAML or JSON.
+    chart: PathBuf,
+    /// The file to write: `.svg` or `.png`.
+    #[arg(short = 'o', long)]
+    out: PathBuf,
 }
 
 #[derive(clap::Args, Debug)]
@@ -122,6 +165,9 @@ struct RenderArgs {
     /// dL/d rgb (H, W, 3) for renderers with gradients.
     #[arg(long)]
     grad_from: Option<PathBuf>,
+    /// Render every frame of the scene's NeRF camera file (`camera: {type: nerf}`) into OUT/frame_IIII/.
+    #[arg(long)]
+    all_frames: bool,
     #[command(flatten)]
     common: Common,
 }
@@ -318,6 +364,9 @@ fn dispatch(cli: Cli) -> anyhow::Result<Outcome> {
         Cmd::Perf(a) => cmd_perf(&a),
         Cmd::Compare(a) => cmd_compare(&a),
         Cmd::Bless(a) => cmd_bless(&a),
+        Cmd::Merge(a) => cmd_merge(&a),
+        Cmd::Report(a) => cmd_report(&a),
+        Cmd::Plot(a) => cmd_plot(&a),
         Cmd::Worker(a) => cmd_worker(&a),
     }
 }
@@ -340,6 +389,7 @@ fn cmd_run(a: RunArgs) -> anyhow::Result<Outcome> {
         thresholds: a.thresholds,
         mem_limit: a.common.mem_limit,
         bless: false,
+        partition: a.partition,
     };
     let board = runner::run(&opts)?;
     if opts.json {
@@ -358,7 +408,7 @@ fn cmd_run(a: RunArgs) -> anyhow::Result<Outcome> {
 /// prints the files written, metrics on stderr.
 fn cmd_render(a: &RenderArgs) -> anyhow::Result<Outcome> {
     init_threads(a.common.threads);
-    let outputs = render::render(&RenderRequest {
+    let req = RenderRequest {
         scene: &a.scene,
         backend: a.backend.into(),
         precision: a.precision.into(),
@@ -367,9 +417,18 @@ fn cmd_render(a: &RenderArgs) -> anyhow::Result<Outcome> {
         grad_from: a.grad_from.as_deref(),
         seed: a.common.seed,
         budget: budget(&a.common),
-    })?;
+    };
     let out = &a.out;
     std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
+    if a.all_frames {
+        let n = frames::render_all(&req, out, |p| println!("{}", p.display()))?;
+        eprintln!("{n} frames rendered");
+        return Ok(Outcome::Ok);
+    }
+    let spinner = progress::spinner(&format!("rendering {}", a.scene.display()), false);
+    let outputs = render::render(&req);
+    spinner.finish_and_clear();
+    let outputs = outputs?;
     for (n, t) in &outputs.tensors {
         for p in write_tensor(out, n, t)? {
             println!("{}", p.display());
@@ -468,6 +527,7 @@ fn cmd_perf(a: &PerfArgs) -> anyhow::Result<Outcome> {
         a.common.threads,
         a.common.seed,
         a.common.mem_limit,
+        a.json,
         |r| {
             if !a.json {
                 print_scenario(r);
@@ -584,6 +644,7 @@ fn cmd_bless(a: &BlessArgs) -> anyhow::Result<Outcome> {
         thresholds: None,
         mem_limit: None,
         bless: true,
+        partition: None,
     };
     let board = runner::run(&opts)?;
     let mut wrote = 0;
@@ -599,6 +660,58 @@ fn cmd_bless(a: &BlessArgs) -> anyhow::Result<Outcome> {
         }
     }
     println!("{wrote} golden files written; review them with git diff before committing");
+    Ok(Outcome::Ok)
+}
+
+/// `hpjudge merge`: the shards' boards as one; exit 1 when a case failed.
+fn cmd_merge(a: &MergeArgs) -> anyhow::Result<Outcome> {
+    let boards = a
+        .boards
+        .iter()
+        .map(|p| Ok((p.display().to_string(), merge::read_board(p)?)))
+        .collect::<Result<Vec<_>, JudgeInputError>>()?;
+    let board = merge::merge(&boards)?;
+    board
+        .write_atomic(&a.out)
+        .with_context(|| format!("writing {}", a.out.display()))?;
+    if let Some(j) = &a.junit {
+        std::fs::write(j, to_junit(&board)).with_context(|| format!("writing {}", j.display()))?;
+    }
+    println!("merged {} shards: {}", boards.len(), a.out.display());
+    println!("{}", board.summary.line());
+    Ok(if board.all_good() {
+        Outcome::Ok
+    } else {
+        Outcome::Failed
+    })
+}
+
+/// `hpjudge report`: the run's static HTML page.
+fn cmd_report(a: &ReportArgs) -> anyhow::Result<Outcome> {
+    let out = a
+        .output
+        .clone()
+        .unwrap_or_else(|| a.out_dir.join("report.html"));
+    let html = report::build(&a.out_dir)?;
+    std::fs::write(&out, html).with_context(|| format!("writing {}", out.display()))?;
+    println!("{}", out.display());
+    Ok(Outcome::Ok)
+}
+
+/// `hpjudge plot`: one chart file drawn with axes and a legend.
+fn cmd_plot(a: &PlotArgs) -> anyhow::Result<Outcome> {
+    let chart = plot::load_chart(&a.chart)?;
+    match a.out.extension().and_then(|e| e.to_str()) {
+        Some("svg") => std::fs::write(&a.out, plot::render_svg(&chart)?)
+            .with_context(|| format!("writing {}", a.out.display()))?,
+        Some("png") => {
+            let t = plot::render(&chart)?;
+            let s = t.shape();
+            write_png(&a.out, s[0], s[1], &t.to_f64_vec())?;
+        }
+        _ => bail!("{}: the output must end in .svg or .png", a.out.display()),
+    }
+    println!("{}", a.out.display());
     Ok(Outcome::Ok)
 }
 

@@ -22,7 +22,8 @@ pub enum PerfRunError {
 
 /// Runs the scenarios of `scenarios` whose id contains `filter`, calling
 /// `each` with every result as it arrives; writes `out/perf.json` and returns
-/// the report and that path. thresholds.yaml is read beside the scenarios
+/// the report and that path. A progress bar with ETA is drawn unless
+/// `json` (or CI, or no terminal). thresholds.yaml is read beside the scenarios
 /// file, profile `ci` when CI is set, else `default`.
 pub fn run_scenarios(
     scenarios: &Path,
@@ -31,6 +32,7 @@ pub fn run_scenarios(
     threads: usize,
     seed: u32,
     mem_limit: Option<u64>,
+    json: bool,
     mut each: impl FnMut(&ScenarioResult),
 ) -> Result<(PerfReport, PathBuf), PerfRunError> {
     let perf = PerfScenarios::load(scenarios)?;
@@ -46,11 +48,14 @@ pub fn run_scenarios(
     let th = Thresholds::load(&th_path, &profile)?;
     std::fs::create_dir_all(out)?;
     let mut results = Vec::new();
-    for s in perf
+    let selected: Vec<&Scenario> = perf
         .scenarios
         .iter()
         .filter(|s| filter.is_none_or(|f| s.id.contains(f)))
-    {
+        .collect();
+    let bar = crate::judge::progress::bar(selected.len() as u64, json);
+    for s in selected {
+        bar.set_message(s.id.clone());
         let dir = out.join("perf").join(&s.id);
         std::fs::create_dir_all(&dir)?;
         let limit = th
@@ -80,9 +85,11 @@ pub fn run_scenarios(
             ChildEnd::TimedOut => failed_scenario(s, format!("timed out after {limit:.0} s")),
             ChildEnd::Failed(why) => failed_scenario(s, why),
         };
-        each(&r);
+        bar.suspend(|| each(&r));
+        bar.inc(1);
         results.push(r);
     }
+    bar.finish_and_clear();
     let threads = if threads > 0 {
         threads
     } else {

@@ -11,6 +11,7 @@ use crate::scene::SceneDoc;
 use crate::tensor::{Outputs, Tensor};
 
 /// What `hpjudge render` was asked for.
+#[derive(Clone, Copy)]
 pub struct RenderRequest<'a> {
     pub scene: &'a Path,
     pub backend: BackendKind,

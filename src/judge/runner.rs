@@ -3,7 +3,6 @@
 //! limit, and writes the scoreboard atomically after every case.
 
 use std::collections::{BTreeMap, BTreeSet};
-use std::io::IsTerminal;
 use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -16,6 +15,7 @@ use super::manifest::not_a_file;
 use super::manifest::{LoadedCase, Manifest};
 use super::ops::BackendKind;
 use super::outlock::lock_out_dir;
+use super::partition::Partition;
 use super::perf::PerfScenarios;
 use super::scoreboard::InputHashes;
 use super::scoreboard::{BackendResult, CaseEntry, Scoreboard, Summary, Verdict, SCHEMA_VERSION};
@@ -61,6 +61,8 @@ pub struct RunOptions {
     pub mem_limit: Option<u64>,
     /// Workers write goldens instead of judging (`hpjudge bless`).
     pub bless: bool,
+    /// Run only this shard's cases (`--partition K/N`).
+    pub partition: Option<Partition>,
 }
 
 /// The judge's inputs, loaded and cross-checked.
@@ -413,6 +415,7 @@ pub fn run(opts: &RunOptions) -> Result<Scoreboard, JudgeInputError> {
                 .is_none_or(|f| c.case.id.contains(f.as_str()))
         })
         .filter(|c| !opts.bless || c.case.asserts.iter().any(|a| !a.goldens().is_empty()))
+        .filter(|c| opts.partition.is_none_or(|p| p.contains(&c.case.id)))
         .collect();
     let total: u64 = selected
         .iter()
@@ -432,6 +435,7 @@ pub fn run(opts: &RunOptions) -> Result<Scoreboard, JudgeInputError> {
         cases_total: total,
         cases_done: 0,
         stopped: None,
+        partition: opts.partition,
         inputs: InputHashes {
             manifest_tree_sha256: inputs.manifest.tree_sha256.clone(),
             thresholds_sha256: th.sha256.clone(),
@@ -450,15 +454,7 @@ pub fn run(opts: &RunOptions) -> Result<Scoreboard, JudgeInputError> {
         summary: Summary::default(),
         cases: vec![],
     };
-    let bar = if show_progress(
-        opts.json,
-        std::env::var_os("CI").is_some(),
-        std::io::stderr().is_terminal(),
-    ) {
-        indicatif::ProgressBar::new(total)
-    } else {
-        indicatif::ProgressBar::hidden()
-    };
+    let bar = super::progress::bar(total, opts.json);
     let board_path = out.join("scoreboard.json");
     save(&mut board, &board_path)?;
     let mut seen_backends = BTreeSet::new();
@@ -616,6 +612,7 @@ mod tests {
             thresholds: None,
             mem_limit: None,
             bless: false,
+            partition: None,
         };
         let r = repro(&opts, "ci", "-odd", BackendKind::Gpu);
         assert_eq!(

@@ -11,6 +11,7 @@ use serde::{Deserialize, Serialize};
 use super::asserts::Check;
 use super::manifest::Expect;
 use super::ops::BackendKind;
+use super::partition::Partition;
 use crate::tensor::TensorInfo;
 
 /// The scoreboard's schema version (2: `complete`, `cases_total`,
@@ -180,6 +181,10 @@ pub struct Scoreboard {
     /// Why the run stopped before the end, when it did.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub stopped: Option<String>,
+    /// The shard this run covered (`run --partition K/N`); absent for a
+    /// whole run and for a merged board.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub partition: Option<Partition>,
     #[serde(default)]
     pub inputs: InputHashes,
     pub environment: serde_json::Value,

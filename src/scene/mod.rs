@@ -6,6 +6,7 @@
 //! which rejects unknown keys. Errors name the file and the key path.
 
 pub mod camera;
+pub mod nerf;
 pub mod pathtrace;
 pub mod rays;
 pub mod transport;
@@ -92,20 +93,19 @@ pub fn from_value<T: DeserializeOwned>(value: &Value, at: &str) -> Result<T> {
 impl SceneDoc {
     /// Loads a scene file and applies `key=value` overrides (see [`apply_set`]).
     pub fn load(path: &Path, sets: &[String]) -> Result<SceneDoc> {
-        let mut parsed = Vec::with_capacity(sets.len());
-        for s in sets {
-            let (k, v) = s
-                .split_once('=')
-                .ok_or_else(|| Error::invalid(format!("--set {s}"), "expected key=value"))?;
-            let v: Value = serde_yaml::from_str(v)
-                .map_err(|e| Error::invalid(format!("--set {s}"), e.to_string()))?;
-            parsed.push((k.trim().to_string(), v));
-        }
-        SceneDoc::load_values(path, &parsed)
+        SceneDoc::load_values(path, &parse_sets(sets)?)
     }
 
-    /// Loads a scene file and applies already-parsed overrides in order.
+    /// Loads a scene file, applies already-parsed overrides in order, then
+    /// reads a NeRF camera file the camera names (`scene/nerf.rs`).
     pub fn load_values(path: &Path, sets: &[(String, Value)]) -> Result<SceneDoc> {
+        let mut doc = SceneDoc::load_raw(path, sets)?;
+        nerf::expand(&mut doc)?;
+        Ok(doc)
+    }
+
+    /// [`SceneDoc::load_values`] without reading camera files.
+    pub fn load_raw(path: &Path, sets: &[(String, Value)]) -> Result<SceneDoc> {
         let mut value = read_yaml(path)?;
         if !value.is_mapping() {
             return Err(Error::invalid(
@@ -175,6 +175,20 @@ impl SceneDoc {
         }
         self.path.parent().unwrap_or(Path::new(".")).join(p)
     }
+}
+
+/// Parses `key=value` overrides (`--set`), the value as YAML.
+pub fn parse_sets(sets: &[String]) -> Result<Vec<(String, Value)>> {
+    let mut parsed = Vec::with_capacity(sets.len());
+    for s in sets {
+        let (k, v) = s
+            .split_once('=')
+            .ok_or_else(|| Error::invalid(format!("--set {s}"), "expected key=value"))?;
+        let v: Value = serde_yaml::from_str(v)
+            .map_err(|e| Error::invalid(format!("--set {s}"), e.to_string()))?;
+        parsed.push((k.trim().to_string(), v));
+    }
+    Ok(parsed)
 }
 
 /// Parses a scene as its renderer's typed form, without running anything

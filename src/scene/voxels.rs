@@ -23,9 +23,9 @@ use crate::error::{Error, Result};
 use crate::voxels::attributes::AttrForm;
 use crate::voxels::cast::{default_max_iter, Lod};
 use crate::voxels::mesh::Mesh;
-use crate::voxels::voxelise::voxelise;
 use crate::voxels::render::Structure;
 use crate::voxels::shape::{Shape, VoxelBox};
+use crate::voxels::voxelise::voxelise;
 
 #[derive(Clone, Copy, Debug, Deserialize, PartialEq)]
 #[serde(deny_unknown_fields)]
@@ -163,8 +163,7 @@ pub fn parse(doc: &SceneDoc) -> Result<VoxelScene> {
             "must be at least 1",
         ));
     }
-    if rest.attributes != AttrForm::None
-        && !matches!(shape, Shape::Sphere { .. } | Shape::Mesh(_))
+    if rest.attributes != AttrForm::None && !matches!(shape, Shape::Sphere { .. } | Shape::Mesh(_))
     {
         return Err(Error::invalid(
             format!("{at} key `attributes`"),

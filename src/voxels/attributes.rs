@@ -117,7 +117,9 @@ impl Attributes {
         let dxt_colour = par_collect("voxels.attr_dxt_colour", blocks, |b| {
             encode_colour(&slice(b).iter().map(|&n| colour_of(n)).collect::<Vec<_>>())
         });
-        let dxt_normal = par_collect("voxels.attr_dxt_normal", blocks, |b| encode_normals(slice(b)));
+        let dxt_normal = par_collect("voxels.attr_dxt_normal", blocks, |b| {
+            encode_normals(slice(b))
+        });
         Attributes {
             plain,
             dxt_colour,
@@ -173,7 +175,9 @@ pub fn quality(a: &Attributes, form: AttrForm, ns: &[[f64; 3]]) -> AttrQuality {
         let (c, n) = a.decode(form, i).unwrap_or(([0.0; 3], [0.0; 3]));
         let exact = colour_of(ns[i]);
         let se: f64 = (0..3).map(|k| (c[k] as f64 - exact[k]).powi(2)).sum();
-        let mx = (0..3).map(|k| (c[k] as f64 - exact[k]).abs()).fold(0.0, f64::max);
+        let mx = (0..3)
+            .map(|k| (c[k] as f64 - exact[k]).abs())
+            .fold(0.0, f64::max);
         let zero = ns[i] == [0.0; 3];
         let dot: f64 = (0..3).map(|k| n[k] as f64 * ns[i][k]).sum();
         (se, mx, zero, dot.clamp(-1.0, 1.0).acos().to_degrees())

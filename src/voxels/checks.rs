@@ -218,7 +218,12 @@ pub fn attribute_quality(shape: &Shape, tree: &Octree) -> Result<Outputs> {
 /// The separating-axis referee over every `strides.0`-th triangle and the
 /// solid voxels of every `strides.1`-th leaf, skipping gaps within `margin`
 /// (`outputs::mesh_metrics`), with the build's metrics.
-pub fn mesh_referee(m: &MeshVoxels, tree: &Octree, strides: (usize, usize), margin: f64) -> Outputs {
+pub fn mesh_referee(
+    m: &MeshVoxels,
+    tree: &Octree,
+    strides: (usize, usize),
+    margin: f64,
+) -> Outputs {
     let tc = check_triangles(&m.mesh, tree, strides.0, margin);
     let vc = check_voxels(&m.mesh, tree, strides.1, margin);
     let mut out = Outputs::default();

@@ -165,7 +165,9 @@ pub fn encode_colour(cs: &[[f64; 3]]) -> [u32; 2] {
     let mut w0 = pack565(at(hi)) | pack565(at(lo)) << 16;
     let (mut idx, mut err) = fit_indices(w0, cs);
     for _ in 0..2 {
-        let Some((c0, c1)) = refit(idx, cs) else { break };
+        let Some((c0, c1)) = refit(idx, cs) else {
+            break;
+        };
         let cand = pack565(c0) | pack565(c1) << 16;
         let (i2, e2) = fit_indices(cand, cs);
         if e2 >= err {
@@ -211,7 +213,10 @@ fn endpoint(e: u32) -> f32 {
 }
 
 fn channel_value(w: &[u32], at: usize, s: usize) -> f32 {
-    let (e0, e1) = (endpoint(get_bits(w, at, 12)), endpoint(get_bits(w, at + 12, 12)));
+    let (e0, e1) = (
+        endpoint(get_bits(w, at, 12)),
+        endpoint(get_bits(w, at + 12, 12)),
+    );
     let k = get_bits(w, at + 24 + 3 * s, 3) as f32;
     e0 + (e1 - e0) * k / 7.0
 }
@@ -287,10 +292,18 @@ mod tests {
 
     #[test]
     fn octahedral_round_trip_is_exact_up_to_rounding_on_both_hemispheres() {
-        for n in [[0.3, -0.5, 0.8], [0.3, -0.5, -0.8], [0.0, 0.0, -1.0], [-1.0, 0.0, 0.0]] {
+        for n in [
+            [0.3, -0.5, 0.8],
+            [0.3, -0.5, -0.8],
+            [0.0, 0.0, -1.0],
+            [-1.0, 0.0, 0.0],
+        ] {
             let n = unit(n);
             let e = oct_encode(n);
-            assert!(angle(oct_decode([e[0] as f32, e[1] as f32]), n) < 1e-3, "{n:?}");
+            assert!(
+                angle(oct_decode([e[0] as f32, e[1] as f32]), n) < 1e-3,
+                "{n:?}"
+            );
         }
     }
 
@@ -313,7 +326,9 @@ mod tests {
             .map(|i| [0.2 + 0.02 * i as f64, 0.5, 0.7 - 0.01 * i as f64])
             .collect();
         let w = encode_colour(&cs);
-        let worst = (0..16).map(|s| sq(decode_colour(&w, s), cs[s]).sqrt()).fold(0.0, f64::max);
+        let worst = (0..16)
+            .map(|s| sq(decode_colour(&w, s), cs[s]).sqrt())
+            .fold(0.0, f64::max);
         assert!(worst < 0.06, "{worst}");
     }
 

@@ -40,7 +40,11 @@ impl Mesh {
         if mesh.tris.is_empty() {
             return Err(Error::invalid(path.display().to_string(), "no triangles"));
         }
-        if let Some(i) = mesh.tris.iter().position(|t| t.iter().flatten().any(|x| !x.is_finite())) {
+        if let Some(i) = mesh
+            .tris
+            .iter()
+            .position(|t| t.iter().flatten().any(|x| !x.is_finite()))
+        {
             return Err(Error::invalid(
                 path.display().to_string(),
                 format!("triangle {i} has a non-finite vertex"),
@@ -114,7 +118,12 @@ fn load_obj(path: &Path) -> Result<Mesh> {
             .collect();
         let at = format!("{} object `{}`", path.display(), m.name);
         for f in m.mesh.indices.chunks_exact(3) {
-            fan(&pos, &f.iter().map(|&i| i as usize).collect::<Vec<_>>(), &at, &mut tris)?;
+            fan(
+                &pos,
+                &f.iter().map(|&i| i as usize).collect::<Vec<_>>(),
+                &at,
+                &mut tris,
+            )?;
         }
     }
     Ok(Mesh { tris })
@@ -208,23 +217,35 @@ mod tests {
         let b = Mesh::load(&write("q.ply", QUAD_PLY)).unwrap();
         assert_eq!(a.tris.len(), 2);
         assert_eq!(a, b);
-        assert_eq!(a.tris[1], [[0.0, 0.0, 0.0], [2.0, 1.0, 0.0], [0.0, 1.0, 0.0]]);
+        assert_eq!(
+            a.tris[1],
+            [[0.0, 0.0, 0.0], [2.0, 1.0, 0.0], [0.0, 1.0, 0.0]]
+        );
     }
 
     #[test]
     fn placement_centres_the_box_and_makes_the_longest_side_1_8() {
-        let m = Mesh::load(&write("p.obj", QUAD_OBJ)).unwrap().placed().unwrap();
+        let m = Mesh::load(&write("p.obj", QUAD_OBJ))
+            .unwrap()
+            .placed()
+            .unwrap();
         let (lo, hi) = m.bounds();
         assert_eq!((lo, hi), ([-0.9, -0.45, 0.0], [0.9, 0.45, 0.0]));
     }
 
     #[test]
     fn bad_files_are_refused_with_their_name() {
-        let e = Mesh::load(&write("bad.obj", "v 0 0 0\nf 1 2 3\n")).unwrap_err().to_string();
+        let e = Mesh::load(&write("bad.obj", "v 0 0 0\nf 1 2 3\n"))
+            .unwrap_err()
+            .to_string();
         assert!(e.contains("bad.obj"), "{e}");
-        let e = Mesh::load(&write("bad.ply", "ply\nnonsense\n")).unwrap_err().to_string();
+        let e = Mesh::load(&write("bad.ply", "ply\nnonsense\n"))
+            .unwrap_err()
+            .to_string();
         assert!(e.contains("bad.ply"), "{e}");
-        let e = Mesh::load(&write("m.stl", "solid")).unwrap_err().to_string();
+        let e = Mesh::load(&write("m.stl", "solid"))
+            .unwrap_err()
+            .to_string();
         assert!(e.contains("m.stl") && e.contains(".obj"), "{e}");
         let e = Mesh::load(&write("n.obj", "v 0 0 nan\nv 1 0 0\nv 0 1 0\nf 1 2 3\n"))
             .unwrap_err()

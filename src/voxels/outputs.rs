@@ -140,10 +140,8 @@ pub fn mesh_metrics(out: &mut Outputs, m: &MeshVoxels, t: &TriangleCheck, v: &Vo
     out.tensor("missing", Tensor::scalar(t.missing as f64));
     out.tensor("untouched", Tensor::scalar(v.untouched as f64));
     out.tensor("overlapped", Tensor::scalar(t.overlapped as f64));
-    out.metric("voxelise_s", m.voxelise_s).metric(
-        "mesh_voxel_bytes",
-        (m.codes.len() * (8 + 12)) as f64,
-    );
+    out.metric("voxelise_s", m.voxelise_s)
+        .metric("mesh_voxel_bytes", (m.codes.len() * (8 + 12)) as f64);
 }
 
 /// The DAG's counters and build time, beside an octree's.

@@ -85,7 +85,12 @@ pub fn check_triangles(mesh: &Mesh, tree: &Octree, stride: usize, margin: f64) -
         };
         let lo = [0, 1, 2].map(|a| t.iter().map(|v| v[a]).fold(f64::INFINITY, f64::min));
         let hi = [0, 1, 2].map(|a| t.iter().map(|v| v[a]).fold(f64::NEG_INFINITY, f64::max));
-        let cells = |a: usize| ((lo[a].floor() as i64 - 1).max(0), (hi[a].floor() as i64 + 1).min(n - 1));
+        let cells = |a: usize| {
+            (
+                (lo[a].floor() as i64 - 1).max(0),
+                (hi[a].floor() as i64 + 1).min(n - 1),
+            )
+        };
         let (x, y, z) = (cells(0), cells(1), cells(2));
         for i in x.0..=x.1 {
             for j in y.0..=y.1 {
@@ -102,12 +107,13 @@ pub fn check_triangles(mesh: &Mesh, tree: &Octree, stride: usize, margin: f64) -
         }
         r
     });
-    per.iter().fold(TriangleCheck::default(), |a, b| TriangleCheck {
-        triangles: a.triangles + b.triangles,
-        overlapped: a.overlapped + b.overlapped,
-        missing: a.missing + b.missing,
-        ties: a.ties + b.ties,
-    })
+    per.iter()
+        .fold(TriangleCheck::default(), |a, b| TriangleCheck {
+            triangles: a.triangles + b.triangles,
+            overlapped: a.overlapped + b.overlapped,
+            missing: a.missing + b.missing,
+            ties: a.ties + b.ties,
+        })
 }
 
 /// What [`check_voxels`] found.
@@ -133,8 +139,10 @@ pub fn check_voxels(mesh: &Mesh, tree: &Octree, stride: usize, margin: f64) -> V
     let mut buckets: Vec<Vec<u32>> = vec![Vec::new(); nb * nb * nb];
     let cell = |x: f64| ((x.floor() as i64).clamp(0, (1i64 << depth) - 1) as usize) >> shift;
     for (id, t) in tris.iter().enumerate() {
-        let lo = [0, 1, 2].map(|a| cell(t.iter().map(|v| v[a]).fold(f64::INFINITY, f64::min) - 1.0));
-        let hi = [0, 1, 2].map(|a| cell(t.iter().map(|v| v[a]).fold(f64::NEG_INFINITY, f64::max) + 1.0));
+        let lo =
+            [0, 1, 2].map(|a| cell(t.iter().map(|v| v[a]).fold(f64::INFINITY, f64::min) - 1.0));
+        let hi =
+            [0, 1, 2].map(|a| cell(t.iter().map(|v| v[a]).fold(f64::NEG_INFINITY, f64::max) + 1.0));
         for i in lo[0]..=hi[0] {
             for j in lo[1]..=hi[1] {
                 for k in lo[2]..=hi[2] {

@@ -103,7 +103,10 @@ fn inside(e: &[[f64; 3]; 3], x: f64, y: f64) -> bool {
 
 /// Voxel index range `[lo, hi]` whose closed cells meet `[a, b]`, clamped to the grid.
 fn cell_range(a: f64, b: f64, n: i64) -> (i64, i64) {
-    (((a.ceil() as i64) - 1).max(0), (b.floor() as i64).min(n - 1))
+    (
+        ((a.ceil() as i64) - 1).max(0),
+        (b.floor() as i64).min(n - 1),
+    )
 }
 
 /// Calls `f(voxel)` for every voxel of the depth-`depth` grid that the
@@ -134,7 +137,12 @@ pub fn triangle_voxels(t: &[[f64; 3]; 3], depth: u32, mut f: impl FnMut([u32; 3]
                 continue;
             }
             let plane = |a: f64, b: f64| (dot0 - nrm[u] * a - nrm[v] * b) / nrm[w];
-            let ws = [plane(x, y), plane(x + 1.0, y), plane(x, y + 1.0), plane(x + 1.0, y + 1.0)];
+            let ws = [
+                plane(x, y),
+                plane(x + 1.0, y),
+                plane(x, y + 1.0),
+                plane(x + 1.0, y + 1.0),
+            ];
             let wmin = ws.iter().copied().fold(f64::INFINITY, f64::min);
             let wmax = ws.iter().copied().fold(f64::NEG_INFINITY, f64::max);
             let (k0, k1) = cell_range(wmin, wmax, n);
@@ -158,7 +166,10 @@ pub fn triangle_voxels(t: &[[f64; 3]; 3], depth: u32, mut f: impl FnMut([u32; 3]
 /// bound (the triangles' bounding-box cells) is over `budget`.
 pub fn voxelise(mesh: Mesh, depth: u32, budget: &MemBudget) -> Result<MeshVoxels> {
     if depth == 0 || depth > MAX_DEPTH {
-        return Err(Error::invalid("depth", format!("{depth} is not in 1..={MAX_DEPTH}")));
+        return Err(Error::invalid(
+            "depth",
+            format!("{depth} is not in 1..={MAX_DEPTH}"),
+        ));
     }
     let t0 = std::time::Instant::now();
     let tri_bits = 64 - (mesh.tris.len().max(2) as u64 - 1).leading_zeros();
@@ -206,7 +217,10 @@ pub fn voxelise(mesh: Mesh, depth: u32, budget: &MemBudget) -> Result<MeshVoxels
         let c = cross(sub(t[1], t[0]), sub(t[2], t[0]));
         acc = [0, 1, 2].map(|a| acc[a] + c[a]);
         let code = key >> tri_bits;
-        if pairs.get(i + 1).is_none_or(|&next| next >> tri_bits != code) {
+        if pairs
+            .get(i + 1)
+            .is_none_or(|&next| next >> tri_bits != code)
+        {
             codes.push(code);
             normal_sum.push(acc.map(|x| x as f32));
             acc = [0.0; 3];
@@ -294,7 +308,10 @@ mod tests {
         use crate::voxels::shape::Shape;
         let path = std::path::Path::new("/usr/share/glmark2/models/bunny.obj");
         if !path.exists() {
-            eprintln!("skipped: {} absent (Debian package glmark2-data)", path.display());
+            eprintln!(
+                "skipped: {} absent (Debian package glmark2-data)",
+                path.display()
+            );
             return;
         }
         let mesh = Mesh::load(path).unwrap().placed().unwrap();

@@ -159,14 +159,20 @@ pub fn cpu_vs_gpu(
                 let pname = ["per_ray", "packet"][k];
                 out.metric(&format!("{sname}_{pname}_{set}_mrays_per_cpu_s"), rate[k]);
             }
-            out.metric(&format!("{sname}_{set}_packet_speedup"), rate[1] / rate[0].max(1e-12));
+            out.metric(
+                &format!("{sname}_{set}_packet_speedup"),
+                rate[1] / rate[0].max(1e-12),
+            );
             let gc = if set == "coherent" {
                 g.cast_camera(cam, gen, &gpu_params(&p), false, budget)?
             } else {
                 g.cast_rays(&packed, &gpu_params(&p), budget)?
             };
             let m = gc.hits.len() as f64;
-            out.metric(&format!("{sname}_gpu_{set}_mrays_per_s"), m / gc.gpu_s.max(1e-12) / 1e6);
+            out.metric(
+                &format!("{sname}_gpu_{set}_mrays_per_s"),
+                m / gc.gpu_s.max(1e-12) / 1e6,
+            );
             out.metric(
                 &format!("{sname}_{set}_mean_iters"),
                 mean(gc.hits.iter().map(|h| h.iters as f64)),

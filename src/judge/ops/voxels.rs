@@ -145,7 +145,10 @@ fn parts(ctx: &OpCtx, sc: &VoxelScene, tree: &Octree) -> Result<(Option<Dag>, Op
         Structure::Octree => None,
         Structure::Dag => Some(build_dag(tree, &ctx.budget)?),
     };
-    Ok((dag, sc.contours.then(|| fit_all(&sc.shape, tree)).transpose()?))
+    Ok((
+        dag,
+        sc.contours.then(|| fit_all(&sc.shape, tree)).transpose()?,
+    ))
 }
 
 fn render(ctx: &OpCtx) -> Result<Outputs> {
@@ -394,7 +397,10 @@ fn gpu_bench(ctx: &OpCtx) -> Result<Outputs> {
     let coh = Batch::<f32>::camera(&cam, &gen, &ctx.budget)?;
     let inc = Batch::<f32>::incoherent(count, seed);
     measure::cpu_vs_gpu(
-        &[("octree", Through::Octree(&tree)), ("dag", Through::Dag(&dag))],
+        &[
+            ("octree", Through::Octree(&tree)),
+            ("dag", Through::Dag(&dag)),
+        ],
         GpuContext::get()?,
         (&cam, &gen),
         &coh,
@@ -418,7 +424,10 @@ fn mesh_referee_op(ctx: &OpCtx) -> Result<Outputs> {
         return Err(Error::invalid(ctx.scene()?.at(), why));
     };
     let tree = build(&sc.shape, sc.depth, &ctx.budget)?;
-    let strides = (ctx.param_or("tri_stride", 1)?, ctx.param_or("leaf_stride", 1)?);
+    let strides = (
+        ctx.param_or("tri_stride", 1)?,
+        ctx.param_or("leaf_stride", 1)?,
+    );
     let mut out = mesh_referee(m, &tree, strides, ctx.param_or("margin", 1e-9)?);
     out.metric("peak_rss_bytes", peak_rss_bytes());
     Ok(out)
