@@ -76,6 +76,28 @@ pub struct Pass<'a> {
     pub wg: u32,
 }
 
+/// Bind group 0 of `pipeline` (layout derived from the shader) with
+/// `(binding, buffer)` pairs.
+pub fn bind_group(
+    ctx: &GpuContext,
+    label: &str,
+    pipeline: &wgpu::ComputePipeline,
+    buffers: &[(u32, &wgpu::Buffer)],
+) -> wgpu::BindGroup {
+    let entries: Vec<wgpu::BindGroupEntry> = buffers
+        .iter()
+        .map(|(i, b)| wgpu::BindGroupEntry {
+            binding: *i,
+            resource: b.as_entire_binding(),
+        })
+        .collect();
+    ctx.device.create_bind_group(&wgpu::BindGroupDescriptor {
+        label: Some(label),
+        layout: &pipeline.get_bind_group_layout(0),
+        entries: &entries,
+    })
+}
+
 /// Bytes read back, one vector per buffer asked for, and the seconds from
 /// submit to the end of the readback copies (kernels + copies, without
 /// pipeline builds or uploads).
@@ -126,20 +148,7 @@ pub fn run(
         if plan.groups_x == 0 {
             continue;
         }
-        let layout = p.pipeline.get_bind_group_layout(0);
-        let entries: Vec<wgpu::BindGroupEntry> = p
-            .buffers
-            .iter()
-            .map(|(i, b)| wgpu::BindGroupEntry {
-                binding: *i,
-                resource: b.as_entire_binding(),
-            })
-            .collect();
-        let bg = dev.create_bind_group(&wgpu::BindGroupDescriptor {
-            label: Some(p.label),
-            layout: &layout,
-            entries: &entries,
-        });
+        let bg = bind_group(ctx, p.label, p.pipeline, p.buffers);
         let mut cp = enc.begin_compute_pass(&wgpu::ComputePassDescriptor {
             label: Some(p.label),
             timestamp_writes: None,

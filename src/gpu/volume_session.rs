@@ -14,7 +14,7 @@ use std::time::Instant;
 
 use bytemuck::{Pod, Zeroable};
 
-use super::buffers::{storage_out, uniform};
+use super::buffers::{bind_group, storage_out, uniform};
 use super::context::{Dispatch, GpuContext};
 use super::kernels::pipeline;
 use super::rays::RayParams;
@@ -51,26 +51,6 @@ pub struct VolumeSession {
     bg_fused: wgpu::BindGroup,
     bg_img: wgpu::BindGroup,
     plan: Dispatch,
-}
-
-fn bind_group(
-    ctx: &GpuContext,
-    label: &str,
-    p: &wgpu::ComputePipeline,
-    buffers: &[(u32, &wgpu::Buffer)],
-) -> wgpu::BindGroup {
-    let entries: Vec<wgpu::BindGroupEntry> = buffers
-        .iter()
-        .map(|(i, b)| wgpu::BindGroupEntry {
-            binding: *i,
-            resource: b.as_entire_binding(),
-        })
-        .collect();
-    ctx.device.create_bind_group(&wgpu::BindGroupDescriptor {
-        label: Some(label),
-        layout: &p.get_bind_group_layout(0),
-        entries: &entries,
-    })
 }
 
 impl VolumeSession {
