@@ -12,8 +12,10 @@ import os
 ROOT = os.path.join(os.path.dirname(os.path.abspath(__file__)), "..")
 ORDER = [
     ("camera", "The `camera:` block"),
+    ("nerf", "`camera: {type: nerf}` (NeRF `transforms.json` cameras)"),
     ("rays", "`renderer: rays` and the shared view block"),
     ("volume", "`renderer: volume`"),
+    ("volume_hash", "`field: {type: hash_mlp}` (volume)"),
     ("pathtrace", "`renderer: pathtrace`"),
     ("transport", "`renderer: transport`"),
     ("voxels", "`renderer: voxels`"),

@@ -32,6 +32,28 @@ pub fn rand_f32(seed: u32, pixel: u32, sample: u32, dim: u32) -> f32 {
     (rand_u32(seed, pixel, sample, dim) >> 8) as f32 * (1.0 / 16_777_216.0)
 }
 
+/// Every key `[seed, pixel, sample, dim]` of the product of the four axes,
+/// `dim` fastest (a C-order table of shape `[seeds, pixels, samples, dims]`).
+pub fn table_keys(axes: [&[u32]; 4]) -> Vec<[u32; 4]> {
+    let mut keys = vec![];
+    for &s in axes[0] {
+        for &p in axes[1] {
+            for &k in axes[2] {
+                keys.extend(axes[3].iter().map(|&d| [s, p, k, d]));
+            }
+        }
+    }
+    keys
+}
+
+/// [`rand_u32`] and [`rand_f32`] of every key (the CPU side of the RNG
+/// table that the GPU's `kernels/common.wgsl` must reproduce).
+pub fn rand_table(keys: &[[u32; 4]]) -> (Vec<u32>, Vec<f32>) {
+    keys.iter()
+        .map(|&[s, p, k, d]| (rand_u32(s, p, k, d), rand_f32(s, p, k, d)))
+        .unzip()
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -35,6 +35,16 @@ macro_rules! each {
     };
 }
 
+/// A tensor as a manifest lists it; `shape` defaults to `[data.len()]`.
+#[derive(serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ListedTensor {
+    pub dtype: String,
+    #[serde(default)]
+    pub shape: Option<Vec<usize>>,
+    pub data: Vec<f64>,
+}
+
 impl Tensor {
     /// Builds a tensor from a flat row-major vector and a shape.
     pub fn from_shape_vec<T>(shape: &[usize], v: Vec<T>) -> Result<Tensor>
@@ -82,6 +92,18 @@ impl Tensor {
             "uint8" => Tensor::from_shape_vec(shape, data.iter().map(|&x| x as u8).collect()),
             _ => return None,
         })
+    }
+
+    /// A tensor written out in a manifest (`const` op): `{dtype, shape, data}`.
+    pub fn from_listed(c: ListedTensor) -> std::result::Result<Tensor, String> {
+        let shape = c.shape.unwrap_or_else(|| vec![c.data.len()]);
+        let dtype = c.dtype;
+        match Tensor::from_f64_as(&dtype, &shape, c.data) {
+            None => Err(format!(
+                "dtype {dtype:?} is not float32, float64, int32 or uint8"
+            )),
+            Some(t) => t.map_err(|e| e.to_string()),
+        }
     }
 
     /// A 0-d tensor holding one f64.

@@ -45,6 +45,7 @@ pub mod outlock;
 pub mod partition;
 pub mod perf;
 pub mod perf_run;
+pub mod plants;
 pub mod plot;
 pub mod progress;
 pub mod render;

@@ -92,6 +92,19 @@ impl<'a> OpCtx<'a> {
         format!("{} params.{key}", self.case_id)
     }
 
+    /// `params.<key>`, required: rays as `[ox, oy, oz, dx, dy, dz]`, each
+    /// finite with |d| > 0.
+    pub fn listed_rays(&self, key: &str) -> Result<Vec<[f64; 6]>> {
+        let rays: Vec<[f64; 6]> = self.param_req(key)?;
+        let bad = |r: &[f64; 6]| {
+            r.iter().any(|x| !x.is_finite()) || (r[3] * r[3] + r[4] * r[4] + r[5] * r[5]) == 0.0
+        };
+        match rays.iter().position(bad) {
+            Some(i) => Err(self.bad(&format!("{key}[{i}]"), "needs finite numbers and d != 0")),
+            None => Ok(rays),
+        }
+    }
+
     /// An invalid-input error at parameter `key` of this case.
     pub fn bad(&self, key: &str, why: impl Into<String>) -> Error {
         Error::invalid(self.at(key), why)

@@ -8,6 +8,7 @@ use std::path::Path;
 
 use crate::error::{Error, Result};
 use crate::stats::image::image_mean;
+use crate::stats::ztest::z_test;
 use crate::tensor::{Outputs, Tensor};
 
 use super::checks::{region_sum, Region};
@@ -50,6 +51,26 @@ impl Image {
             variance: vec![[0.0; 3]; w * h],
             nonfinite: 0,
         })
+    }
+
+    /// Parity with an independent CPU render `cpu` (another seed): per pixel
+    /// and channel a two-sample z-test (`stats::ztest`, Sidak at `alpha`),
+    /// both images, `nonfinite_samples` of both.
+    pub fn parity_outputs(&self, cpu: &Image, alpha: f64, out: &mut Outputs) -> Result<()> {
+        let flat =
+            |v: &[[f32; 3]]| -> Vec<f64> { v.iter().flat_map(|p| p.map(f64::from)).collect() };
+        let z = z_test(
+            &flat(&self.rgb),
+            &flat(&self.variance),
+            &flat(&cpu.rgb),
+            &flat(&cpu.variance),
+        );
+        let shape = [self.height as usize, self.width as usize];
+        out.tensor("image", Tensor::real3(&shape, &self.rgb)?);
+        out.tensor("cpu_image", Tensor::real3(&shape, &cpu.rgb)?);
+        z.to_outputs(alpha, out);
+        out.counter("nonfinite_samples", self.nonfinite + cpu.nonfinite);
+        Ok(())
     }
 
     /// The furnace test against radiance `expect`: `mean` (3,), `z` (3,) the

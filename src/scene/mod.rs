@@ -329,8 +329,10 @@ mod tests {
         let page = include_str!("../../docs/scenes.md");
         for (file, src) in [
             ("camera.rs", include_str!("camera.rs")),
+            ("nerf.rs", include_str!("nerf.rs")),
             ("rays.rs", include_str!("rays.rs")),
             ("volume.rs", include_str!("volume.rs")),
+            ("volume_hash.rs", include_str!("volume_hash.rs")),
             ("pathtrace.rs", include_str!("pathtrace.rs")),
             ("transport.rs", include_str!("transport.rs")),
             ("voxels.rs", include_str!("voxels.rs")),

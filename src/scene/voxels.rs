@@ -19,10 +19,17 @@ use super::SceneDoc;
 use std::sync::Arc;
 
 use crate::budget::MemBudget;
+use crate::camera::Camera;
 use crate::error::{Error, Result};
+use crate::rays::RayGen;
+use crate::real::Real;
 use crate::voxels::attributes::AttrForm;
+use crate::voxels::batch::{Batch, RaySource};
 use crate::voxels::cast::{default_max_iter, Lod};
+use crate::voxels::contour::fit_all;
+use crate::voxels::dag::{build_dag, Dag};
 use crate::voxels::mesh::Mesh;
+use crate::voxels::octree::Octree;
 use crate::voxels::render::Structure;
 use crate::voxels::shape::{Shape, VoxelBox};
 use crate::voxels::voxelise::voxelise;
@@ -81,6 +88,54 @@ pub struct VoxelScene {
     pub structure: Structure,
     pub contours: bool,
     pub attributes: AttrForm,
+}
+
+impl VoxelScene {
+    /// The scene's camera and generator, at `size` x `size` pixels when given.
+    pub fn view_at(&self, size: Option<u32>) -> Result<(Camera, RayGen)> {
+        let (cam, mut gen) = self.view.build()?;
+        let Some(s) = size else { return Ok((cam, gen)) };
+        (gen.width, gen.height, gen.roi) = (s, s, None);
+        Ok((self.view.camera.build(s, s)?, gen))
+    }
+
+    /// The scene's DAG (`structure: dag`) and contours (`contours: true`),
+    /// built from `tree` when it asks for them.
+    pub fn extras(
+        &self,
+        tree: &Octree,
+        budget: &MemBudget,
+    ) -> Result<(Option<Dag>, Option<Vec<u32>>)> {
+        let dag = match self.structure {
+            Structure::Octree => None,
+            Structure::Dag => Some(build_dag(tree, budget)?),
+        };
+        let contours = self
+            .contours
+            .then(|| fit_all(&self.shape, tree))
+            .transpose()?;
+        Ok((dag, contours))
+    }
+
+    /// The rays of `src` in precision `F` (`count` and `seed` for the
+    /// generated sets), after a budget check.
+    pub fn batch<F: Real>(
+        &self,
+        src: RaySource,
+        count: u32,
+        seed: u32,
+        budget: &MemBudget,
+    ) -> Result<Batch<F>> {
+        if src == RaySource::Camera {
+            let (cam, gen) = self.view_at(None)?;
+            return Batch::camera(&cam, &gen, budget);
+        }
+        Batch::<F>::check_budget(count, src == RaySource::Hard, budget)?;
+        Ok(match src {
+            RaySource::Hard => Batch::hard(&self.shape, self.depth, count, seed),
+            _ => Batch::incoherent(count, seed),
+        })
+    }
 }
 
 /// Loads, places and voxelises the mesh at `path` (relative to the scene's folder).

@@ -72,3 +72,19 @@ pub fn grad_outputs<F: Real>(
     out.metric("bytes_per_sample", g.bytes_per_sample as f64);
     Ok(())
 }
+
+/// The hash-grid gradients of `g`: `dhash_probe` at the flat indices
+/// `idx`, all of `dhash`, `dcam` (6), metric `time_s`.
+pub fn hash_outputs<F: Real>(g: Grads<F>, idx: &[usize], out: &mut Outputs) -> Result<()> {
+    let dh = g.dhash.ok_or_else(|| {
+        crate::error::Error::invalid("volume.hash_grad", "f_diff returned no dhash")
+    })?;
+    out.tensor(
+        "dhash_probe",
+        Tensor::real(&[idx.len()], idx.iter().map(|&i| dh[i]).collect())?,
+    );
+    out.tensor("dhash", Tensor::real(&[dh.len()], dh)?);
+    out.tensor("dcam", Tensor::real(&[6], g.dcam.to_vec())?);
+    out.metric("time_s", g.time_s);
+    Ok(())
+}

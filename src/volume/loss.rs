@@ -7,9 +7,11 @@
 //! where the camera's rays cross, with `rand(seed, q, stream, axis)`; colour
 //! probes also draw a channel.
 
+use crate::error::{Error, Result};
 use crate::rays::RayGen;
 use crate::real::Real;
 use crate::rng::rand_f64;
+use crate::tensor::Tensor;
 
 use super::diff::Upstream;
 
@@ -22,6 +24,18 @@ pub struct LossWeights {
 }
 
 impl LossWeights {
+    /// `W` from an (h, w, 3) float32/float64 `.npy` (`--grad-from`), every
+    /// value finite.
+    pub fn read_rgb(path: &std::path::Path, h: usize, w: usize) -> Result<Vec<[f64; 3]>> {
+        let dims = [Some(h), Some(w), Some(3)];
+        let v = Tensor::read_npy_checked(path, &["float32", "float64"], &dims)?.to_f64_vec();
+        if let Some(i) = v.iter().position(|x| !x.is_finite()) {
+            let why = format!("value at flat index {i} is not finite");
+            return Err(Error::invalid(path.display().to_string(), why));
+        }
+        Ok(v.chunks(3).map(|c| [c[0], c[1], c[2]]).collect())
+    }
+
     /// `W = rand(seed, pixel, 0, ch) - 0.5` for every pixel of `gen`'s
     /// region (SCENES.md RNG), no depth or opacity terms.
     pub fn seeded(gen: &RayGen, seed: u32) -> Vec<[f64; 3]> {

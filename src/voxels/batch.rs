@@ -14,6 +14,18 @@ use super::cast::CastParams;
 use super::raysets::{hard, incoherent, Ray64, HARD_KINDS};
 use super::shape::Shape;
 
+/// The generated ray sets a voxel case draws from (`params.rays`).
+#[derive(Clone, Copy, Debug, serde::Deserialize, PartialEq)]
+#[serde(rename_all = "snake_case")]
+pub enum RaySource {
+    /// The scene's camera (tensors shaped (H, W)).
+    Camera,
+    /// `count` rays of each hard kind (shaped (N,), plus `kind`).
+    Hard,
+    /// `count` rays, origins uniform in the box, uniform directions.
+    Incoherent,
+}
+
 /// Rays in precision `F` and the shape of their per-ray tensors.
 pub struct Batch<F> {
     pub o: Vec<[F; 3]>,

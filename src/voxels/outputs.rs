@@ -1,11 +1,13 @@
 //! Voxel casts and octree builds as named tensors, metrics and counters.
 
 use crate::error::Result;
+use crate::gpu::voxels::GpuCast;
 use crate::real::Real;
 use crate::tensor::{Outputs, Tensor};
 use crate::voxels::attributes::{quality, AttrForm, Attributes};
 use crate::voxels::batch::Batch;
 use crate::voxels::dag::Dag;
+use crate::voxels::gpu::hits_from_gpu;
 use crate::voxels::octree::Octree;
 use crate::voxels::referee_mesh::{TriangleCheck, VoxelCheck};
 use crate::voxels::render::{shade, RefereeHits, VoxelHits};
@@ -200,4 +202,20 @@ impl<F: Real> Batch<F> {
         }
         Ok(())
     }
+}
+
+/// A GPU cast of `b` as [`Batch::cast_outputs`] (no attribute image; the
+/// kernel's `gpu_s` as `cast_s`), plus metric `wall_s` (`wall`, submit to
+/// readback with the upload) and counter `kernel_max_iter`.
+pub fn gpu_cast_outputs(
+    cast: &GpuCast,
+    b: Batch<f32>,
+    (wall, depth, dump): (f64, u32, bool),
+    out: &mut Outputs,
+) -> Result<()> {
+    out.metric("wall_s", wall)
+        .counter("kernel_max_iter", cast.max_iter as u64);
+    let hits = cast.hits.iter().filter(|h| h.hit()).count() as u64;
+    let h = hits_from_gpu(&cast.hits);
+    b.cast_outputs((h, None), (cast.gpu_s, hits), depth, dump, out)
 }

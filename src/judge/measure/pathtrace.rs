@@ -13,14 +13,14 @@ use crate::tensor::{Outputs, Tensor};
 /// seeds) at each spp, MSE averaged over `seeds` (correlated samples across
 /// spp or seeds would bend the slope away from -0.5); with `clamp: false`
 /// the reference's own noise is subtracted from each MSE. Returns the RMSE
-/// per spp and the log-log slope.
+/// per spp (`rmse`), `spp`, the log-log `slope` and `time_s`.
 pub fn convergence(
     spps: &[u32],
     seeds: &[u32],
-    ref_spp: u32,
-    clamp: bool,
+    (ref_spp, clamp): (u32, bool),
     render: impl Fn(u32, u32) -> Result<(Image, f64)>,
-) -> Result<(Vec<f64>, f64)> {
+) -> Result<Outputs> {
+    let t = std::time::Instant::now();
     let (reference, _) = render(ref_spp, 1 << 31)?;
     let noise = if clamp {
         0.0
@@ -38,7 +38,12 @@ pub fn convergence(
     }
     let x: Vec<f64> = spps.iter().map(|&v| v as f64).collect();
     let slope = loglog_slope(&x, &rmse);
-    Ok((rmse, slope))
+    let mut out = Outputs::default();
+    out.tensor("spp", Tensor::real(&[x.len()], x)?);
+    out.tensor("rmse", Tensor::real(&[rmse.len()], rmse)?);
+    out.tensor("slope", Tensor::scalar(slope));
+    out.metric("time_s", t.elapsed().as_secs_f64());
+    Ok(out)
 }
 
 /// Speed against error, one render per spp (seed `seed`): `seconds`, `rmse`

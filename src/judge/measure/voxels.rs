@@ -4,20 +4,21 @@
 //! and per CPU second (/proc, 10 ms ticks).
 
 use super::timed;
-use crate::budget::MemBudget;
+use crate::budget::{bytes_for, MemBudget};
 use crate::camera::Camera;
 use crate::error::Result;
 use crate::gpu::GpuContext;
 use crate::rays::RayGen;
 use crate::real::Real;
-use crate::tensor::Outputs;
+use crate::scene::voxels::VoxelScene;
+use crate::tensor::{Outputs, Tensor};
 use crate::voxels::batch::Batch;
-use crate::voxels::cast::{CastParams, CastReal};
-use crate::voxels::dag::Dag;
+use crate::voxels::cast::CastReal;
+use crate::voxels::dag::{build_dag, Dag};
 use crate::voxels::gpu::gpu_params;
 use crate::voxels::octree::Octree;
+use crate::voxels::outputs::{build_metrics, dag_metrics};
 use crate::voxels::render::{cast_all, cast_all_dag, referee_all, VoxelHits};
-use crate::voxels::shape::Shape;
 use crate::voxels::through::{CastPath, Through};
 
 fn per_cpu_s(n: f64, cpu: f64) -> f64 {
@@ -33,21 +34,122 @@ fn mean(v: impl Iterator<Item = f64>) -> f64 {
     s / n.max(1) as f64
 }
 
+/// A benchmark's ray sets: the camera (`size` x `size` pixels, the scene's
+/// own size when `None`) and its rays, and `count` incoherent rays.
+pub struct Sets<F> {
+    cam: Camera,
+    gen: RayGen,
+    coh: Batch<F>,
+    inc: Batch<F>,
+}
+
+impl<F: Real> Sets<F> {
+    /// The sets after a budget check of `bytes_per_ray` per ray (`what`
+    /// names the check).
+    pub fn new(
+        sc: &VoxelScene,
+        (size, count, seed): (Option<u32>, u32, u32),
+        (what, bytes_per_ray): (&str, u64),
+        budget: &MemBudget,
+    ) -> Result<Sets<F>> {
+        let pixels = size.map_or(0, |s| s as u64 * s as u64);
+        budget.check(what, bytes_for(count as u64 + pixels, bytes_per_ray))?;
+        let (cam, gen) = sc.view_at(size)?;
+        let coh = Batch::camera(&cam, &gen, budget)?;
+        let inc = Batch::incoherent(count, seed);
+        Ok(Sets { cam, gen, coh, inc })
+    }
+
+    fn named(&self) -> [(&'static str, &Batch<F>); 2] {
+        [("coherent", &self.coh), ("incoherent", &self.inc)]
+    }
+}
+
+/// `voxels.bench`: thread count, the octree's build metrics and
+/// [`octree_vs_referee`] on `sets`.
+pub fn bench<F: CastReal>(
+    sc: &VoxelScene,
+    tree: &Octree,
+    sets: &Sets<F>,
+    stride: usize,
+    out: &mut Outputs,
+) {
+    out.metric("threads", rayon::current_num_threads() as f64);
+    build_metrics(out, tree);
+    octree_vs_referee(tree, sc, sets, stride, out);
+}
+
+/// `voxels.dag`: the DAG's metrics against the octree's (bytes ratio,
+/// bytes per voxel, `nodes_per_level`), and with `sets`
+/// [`octree_vs_dag`] over `repeats` rounds.
+pub fn dag_bench<F: CastReal>(
+    sc: &VoxelScene,
+    tree: &Octree,
+    sets: Option<(&Sets<F>, u32)>,
+    budget: &MemBudget,
+    out: &mut Outputs,
+) -> Result<()> {
+    let g = build_dag(tree, budget)?;
+    dag_metrics(out, &g);
+    let t = &tree.stats;
+    out.metric(
+        "octree_over_dag_bytes",
+        t.bytes as f64 / g.stats.bytes as f64,
+    );
+    let per_voxel = if t.solid_voxels == 0 {
+        0.0
+    } else {
+        g.stats.bytes as f64 / t.solid_voxels as f64
+    };
+    out.metric("dag_bytes_per_voxel", per_voxel);
+    out.tensor("nodes_per_level", per_level(&g.stats.nodes_per_level)?);
+    if let Some((sets, repeats)) = sets {
+        octree_vs_dag(tree, &g, sc, sets, repeats, out);
+    }
+    Ok(())
+}
+
+/// Counts per octree level as a tensor.
+pub fn per_level(v: &[u64]) -> Result<Tensor> {
+    Tensor::from_shape_vec(&[v.len()], v.iter().map(|&x| x as f64).collect())
+}
+
+/// `voxels.gpu_bench`: thread count, octree and DAG metrics and
+/// [`cpu_vs_gpu`] of both structures on `sets`.
+pub fn gpu_bench(
+    sc: &VoxelScene,
+    tree: &Octree,
+    sets: &Sets<f32>,
+    gpu: &GpuContext,
+    budget: &MemBudget,
+    out: &mut Outputs,
+) -> Result<()> {
+    let dag = build_dag(tree, budget)?;
+    out.metric("threads", rayon::current_num_threads() as f64);
+    build_metrics(out, tree);
+    dag_metrics(out, &dag);
+    let structures = [
+        ("octree", Through::Octree(tree)),
+        ("dag", Through::Dag(&dag)),
+    ];
+    cpu_vs_gpu(&structures, gpu, sc, sets, budget, out)
+}
+
 /// The octree cast and the referee (on every `stride`-th ray of the same
 /// set) per named batch: `<name>_mrays_per_s` (and per core, per CPU
 /// second), hit fraction, mean iterations, `referee_<name>_*` and
 /// `<name>_speedup_vs_referee`.
 pub fn octree_vs_referee<F: CastReal>(
     tree: &Octree,
-    (shape, depth): (&Shape, u32),
-    batches: [(&str, &Batch<F>); 2],
-    params: impl Fn(&Batch<F>) -> CastParams,
+    sc: &VoxelScene,
+    sets: &Sets<F>,
     stride: usize,
     out: &mut Outputs,
 ) {
     let threads = rayon::current_num_threads() as f64;
-    for (name, b) in batches {
-        let p = params(b);
+    let (shape, depth) = (&sc.shape, sc.depth);
+    for (name, b) in sets.named() {
+        let p = b.params(sc.lod, sc.max_iter);
         let (h, wall, cpu) = timed(|| cast_all::<F>(tree, &b.o, &b.d, &p));
         let n = b.o.len() as f64;
         let rate = n / wall.max(1e-12) / 1e6;
@@ -96,13 +198,13 @@ fn differing<F: Real>(a: &VoxelHits<F>, b: &VoxelHits<F>) -> u64 {
 pub fn octree_vs_dag<F: CastReal>(
     tree: &Octree,
     g: &Dag,
-    batches: [(&str, &Batch<F>); 2],
-    params: impl Fn(&Batch<F>) -> CastParams,
+    sc: &VoxelScene,
+    sets: &Sets<F>,
     repeats: u32,
     out: &mut Outputs,
 ) {
-    for (name, b) in batches {
-        let p = params(b);
+    for (name, b) in sets.named() {
+        let p = b.params(sc.lod, sc.max_iter);
         let (mut a, mut c) = (VoxelHits::default(), VoxelHits::default());
         let (mut ca, mut cb) = (0.0, 0.0);
         for _ in 0..repeats {
@@ -130,17 +232,16 @@ pub fn octree_vs_dag<F: CastReal>(
 /// `{structure}_gpu_{set}_mrays_per_s`, `{structure}_{set}_mean_iters`,
 /// `{structure}_{set}_node_bytes_per_ray` (4 x node words the kernel read;
 /// the CPU casts read the same words).
-#[allow(clippy::too_many_arguments)]
 pub fn cpu_vs_gpu(
     structures: &[(&str, Through)],
     gpu: &GpuContext,
-    (cam, gen): (&Camera, &RayGen),
-    coh: &Batch<f32>,
-    inc: &Batch<f32>,
-    params: impl Fn(&Batch<f32>) -> CastParams,
+    sc: &VoxelScene,
+    sets: &Sets<f32>,
     budget: &MemBudget,
     out: &mut Outputs,
 ) -> Result<()> {
+    let (cam, gen, coh, inc) = (&sets.cam, &sets.gen, &sets.coh, &sets.inc);
+    let params = |b: &Batch<f32>| b.params(sc.lod, sc.max_iter);
     let (p_coh, p_inc) = (params(coh), params(inc));
     let packed: Vec<[f32; 6]> = (inc.o.iter().zip(&inc.d))
         .map(|(o, d)| [o[0], o[1], o[2], d[0], d[1], d[2]])

@@ -19,7 +19,6 @@ use crate::pathtrace::referee::geometry::intersect_reference;
 use crate::pathtrace::{render, Image, RenderParams};
 use crate::scene::pathtrace::PathtraceScene;
 use crate::stats::image::{firefly_fraction, mean_variance, mse};
-use crate::stats::ztest::z_test;
 use crate::tensor::{Outputs, Tensor};
 
 ops! {
@@ -95,14 +94,7 @@ fn render_op(ctx: &OpCtx) -> Result<Outputs> {
 }
 
 fn listed(ctx: &OpCtx) -> Result<(Vec<[f64; 6]>, Vec<ShapeParam>)> {
-    let rays: Vec<[f64; 6]> = ctx.param_req("rays")?;
-    if let Some(i) = rays
-        .iter()
-        .position(|r| r.iter().any(|x| !x.is_finite()) || r[3..].iter().all(|&x| x == 0.0))
-    {
-        return Err(ctx.bad(&format!("rays[{i}]"), "needs finite numbers and d != 0"));
-    }
-    Ok((rays, ctx.param_req("shapes")?))
+    Ok((ctx.listed_rays("rays")?, ctx.param_req("shapes")?))
 }
 
 fn intersect_list(ctx: &OpCtx) -> Result<Outputs> {
@@ -183,19 +175,8 @@ fn convergence(ctx: &OpCtx) -> Result<Outputs> {
         return Err(Error::invalid(format!("{} params", ctx.case_id), why));
     }
     let (ref_spp, clamp) = (ctx.param_or("ref_spp", 4096)?, ctx.param_or("clamp", true)?);
-    let t = Instant::now();
-    let (rmse, slope) = measure::convergence(&spps, &seeds, ref_spp, clamp, |spp, seed| {
-        render_with(&s, spp, seed, ctx)
-    })?;
-    let mut out = Outputs::default();
-    out.tensor(
-        "spp",
-        Tensor::real(&[spps.len()], spps.iter().map(|&v| v as f64).collect())?,
-    );
-    out.tensor("rmse", Tensor::real(&[rmse.len()], rmse)?);
-    out.tensor("slope", Tensor::scalar(slope));
-    out.metric("time_s", t.elapsed().as_secs_f64());
-    Ok(out)
+    let render = |spp, seed| render_with(&s, spp, seed, ctx);
+    measure::convergence(&spps, &seeds, (ref_spp, clamp), render)
 }
 
 fn fireflies(ctx: &OpCtx) -> Result<Outputs> {
@@ -270,12 +251,8 @@ fn speed_error(ctx: &OpCtx) -> Result<Outputs> {
     Ok(out)
 }
 
-fn flat(v: &[[f32; 3]]) -> Vec<f64> {
-    v.iter().flat_map(|p| p.map(f64::from)).collect()
-}
-
 /// The run's backend against the CPU with another seed: per pixel and
-/// channel a two-sample z-test (`stats::ztest`).
+/// channel a two-sample z-test (`Image::parity_outputs`).
 fn parity(ctx: &OpCtx) -> Result<Outputs> {
     let s = load(ctx)?;
     let cpu_seed: u32 = ctx.param_or("cpu_seed", s.params.seed.wrapping_add(1000))?;
@@ -286,27 +263,13 @@ fn parity(ctx: &OpCtx) -> Result<Outputs> {
     }
     let (img, secs) = timed_render(&s, &s.params, ctx)?;
     let cam = s.camera.to_real::<f32>(s.params.width, s.params.height);
-    let cpu = render(
-        &s.scene,
-        &cam,
-        &RenderParams {
-            seed: cpu_seed,
-            ..s.params
-        },
-        &ctx.budget,
-    )?;
-    let z = z_test(
-        &flat(&img.rgb),
-        &flat(&img.variance),
-        &flat(&cpu.rgb),
-        &flat(&cpu.variance),
-    );
-    let shape = [img.height as usize, img.width as usize];
+    let p = RenderParams {
+        seed: cpu_seed,
+        ..s.params
+    };
+    let cpu = render(&s.scene, &cam, &p, &ctx.budget)?;
     let mut out = Outputs::default();
-    out.tensor("image", Tensor::real3(&shape, &img.rgb)?);
-    out.tensor("cpu_image", Tensor::real3(&shape, &cpu.rgb)?);
-    z.to_outputs(alpha, &mut out);
+    img.parity_outputs(&cpu, alpha, &mut out)?;
     out.metric("time_s", secs);
-    out.counter("nonfinite_samples", img.nonfinite + cpu.nonfinite);
     Ok(out)
 }

@@ -10,8 +10,8 @@ use crate::error::{Error, Result};
 use crate::rays::referee::{clip_list_reference, clip_reference};
 use crate::rays::{clip_list, clip_list_outputs, f_ray, Aabb, RayGen, Rays};
 use crate::real::{Precision, Real};
-use crate::rng::{rand_f32, rand_u32};
-use crate::tensor::{Outputs, Tensor};
+use crate::rng::{rand_table, table_keys};
+use crate::tensor::{ListedTensor, Outputs, Tensor};
 
 ops! {
     "rays.generate" CpuGpuF32 generate [] "f_ray on a rays scene: o, d, t0, t1, hit, pixel; metric mrays_per_s";
@@ -91,18 +91,12 @@ struct BoxParam {
 
 /// `params.rays` (finite, d != 0), `params.aabb` (default the unit box), near, far.
 fn listed(ctx: &OpCtx) -> Result<(Vec<[f64; 6]>, Aabb, f64, f64)> {
-    let rays: Vec<[f64; 6]> = ctx.param_req("rays")?;
+    let rays = ctx.listed_rays("rays")?;
     let b = ctx.param::<BoxParam>("aabb")?.map_or(Aabb::UNIT, |b| Aabb {
         min: b.min,
         max: b.max,
     });
     b.validate()?;
-    let bad = |r: &[f64; 6]| {
-        r.iter().any(|x| !x.is_finite()) || (r[3] * r[3] + r[4] * r[4] + r[5] * r[5]).sqrt() == 0.0
-    };
-    if let Some(i) = rays.iter().position(bad) {
-        return Err(ctx.bad(&format!("rays[{i}]"), "needs finite numbers and d != 0"));
-    }
     Ok((
         rays,
         b,
@@ -113,10 +107,11 @@ fn listed(ctx: &OpCtx) -> Result<(Vec<[f64; 6]>, Aabb, f64, f64)> {
 
 fn clip_list_op(ctx: &OpCtx) -> Result<Outputs> {
     let (rays, b, near, far) = listed(ctx)?;
-    match ctx.precision {
-        Precision::F32 => clip_list_outputs(clip_list::<f32>(&rays, &b, near, far)),
-        Precision::F64 => clip_list_outputs(clip_list::<f64>(&rays, &b, near, far)),
-    }
+    by_precision!(ctx, clip_in(&rays, &b, near, far))
+}
+
+fn clip_in<F: Real>(rays: &[[f64; 6]], b: &Aabb, near: f64, far: f64) -> Result<Outputs> {
+    clip_list_outputs(clip_list::<F>(rays, b, near, far))
 }
 
 fn clip_list_reference_op(ctx: &OpCtx) -> Result<Outputs> {
@@ -141,26 +136,11 @@ fn rng_table(ctx: &OpCtx) -> Result<Outputs> {
         .iter()
         .map(|k| ctx.param_req(k))
         .collect::<Result<_>>()?;
-    let shape = [axes[0].len(), axes[1].len(), axes[2].len(), axes[3].len()];
-    let mut keys = vec![];
-    for &s in &axes[0] {
-        for &p in &axes[1] {
-            for &k in &axes[2] {
-                keys.extend(axes[3].iter().map(|&d| [s, p, k, d]));
-            }
-        }
-    }
+    let shape = axes.iter().map(Vec::len).collect::<Vec<_>>();
+    let keys = table_keys([&axes[0], &axes[1], &axes[2], &axes[3]]);
     let (words, floats) = match ctx.backend {
         BackendKind::Gpu => crate::gpu::math::rng_table(crate::gpu::GpuContext::get()?, &keys)?,
-        BackendKind::Cpu => keys
-            .iter()
-            .map(|k| {
-                (
-                    rand_u32(k[0], k[1], k[2], k[3]),
-                    rand_f32(k[0], k[1], k[2], k[3]),
-                )
-            })
-            .unzip(),
+        BackendKind::Cpu => rand_table(&keys),
     };
     let mut out = Outputs::default();
     out.tensor("words", Tensor::from_shape_vec(&shape, words)?);
@@ -197,31 +177,12 @@ fn expm1_table(ctx: &OpCtx) -> Result<Outputs> {
     Ok(out)
 }
 
-#[derive(Deserialize)]
-#[serde(deny_unknown_fields)]
-struct ConstTensor {
-    dtype: String,
-    #[serde(default)]
-    shape: Option<Vec<usize>>,
-    data: Vec<f64>,
-}
-
 fn constant(ctx: &OpCtx) -> Result<Outputs> {
-    let tensors: std::collections::BTreeMap<String, ConstTensor> = ctx.param_req("tensors")?;
+    let tensors: std::collections::BTreeMap<String, ListedTensor> = ctx.param_req("tensors")?;
     let mut out = Outputs::default();
     for (name, c) in tensors {
-        let at = ctx.at(&format!("tensors.{name}"));
-        let shape = c.shape.unwrap_or_else(|| vec![c.data.len()]);
-        let t = Tensor::from_f64_as(&c.dtype, &shape, c.data).ok_or_else(|| {
-            Error::invalid(
-                &at,
-                format!(
-                    "dtype {:?} is not float32, float64, int32 or uint8",
-                    c.dtype
-                ),
-            )
-        })?;
-        out.tensor(&name, t.map_err(|e| Error::invalid(at, e.to_string()))?);
+        let t = Tensor::from_listed(c).map_err(|e| ctx.bad(&format!("tensors.{name}"), e))?;
+        out.tensor(&name, t);
     }
     Ok(out)
 }

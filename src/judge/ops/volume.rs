@@ -11,13 +11,12 @@ use crate::error::{Error, Result};
 use crate::judge::measure::volume as measure;
 use crate::rays::{f_ray, RayGen, Rays};
 use crate::real::Real;
-use crate::rng::rand_f64;
 use crate::scene::volume::FieldSpec;
 use crate::tensor::{Outputs, Tensor};
 use crate::volume::compose::Compose;
 use crate::volume::field::{FieldDesc, Grid};
 use crate::volume::referee::closed_form::{closed_image, optical_depths};
-use crate::volume::referee::quadrature::{beyond_one_cell, grid_probe, quadrature};
+use crate::volume::referee::quadrature::{grid_probe_outputs, probe_points, quadrature};
 use crate::volume::{prepare, render, render_rays, Chain, VolumeParams};
 
 ops! {
@@ -183,12 +182,7 @@ fn probe_setup(ctx: &OpCtx) -> Result<(Vec<[f64; 3]>, crate::volume::field::Grid
     if n == 0 || n > 1 << 22 {
         return Err(ctx.bad("n", "must be in 1..=4194304"));
     }
-    Ok((
-        (0..n)
-            .map(|i| [0, 1, 2].map(|d| rand_f64(seed, i, 0, d) * 3.0 - 1.5))
-            .collect(),
-        g,
-    ))
+    Ok((probe_points(n, seed), g))
 }
 
 fn grid_probe_in<F: Real>(pts: &[[f64; 3]], g: &crate::volume::field::GridDesc) -> Result<Tensor> {
@@ -210,13 +204,7 @@ fn op_grid_probe(ctx: &OpCtx) -> Result<Outputs> {
 
 fn op_grid_probe_reference(ctx: &OpCtx) -> Result<Outputs> {
     let (pts, g) = probe_setup(ctx)?;
-    let (v, inside) = grid_probe(&pts, &g);
-    let mut out = Outputs::default();
-    out.tensor("value", Tensor::real(&[pts.len()], v)?);
-    out.tensor("inside", Tensor::from_shape_vec(&[pts.len()], inside)?);
-    let beyond = beyond_one_cell(&pts, &g);
-    out.tensor("beyond", Tensor::from_shape_vec(&[pts.len()], beyond)?);
-    Ok(out)
+    grid_probe_outputs(&pts, &g)
 }
 
 /// Closed-form `(tau, hit)` per pixel of the scene's region, f64 rays.

@@ -17,7 +17,7 @@ use crate::camera::Camera;
 use crate::error::{Error, Result};
 use crate::judge::measure::volume as measure;
 use crate::rays::{f_ray, RayGen};
-use crate::real::{Precision, Real};
+use crate::real::Real;
 use crate::tensor::{Outputs, Tensor};
 use crate::volume::diff::{f_diff, DiffOptions, Reduce, DEFAULT_CHUNKS};
 use crate::volume::field::{ColorDesc, FieldDesc};
@@ -56,14 +56,7 @@ pub(super) fn loss_weights(ctx: &OpCtx, gen: &RayGen) -> Result<LossWeights> {
         } else {
             ctx.resolve(&p)
         };
-        let t =
-            Tensor::read_npy_checked(&path, &["float32", "float64"], &[Some(h), Some(w), Some(3)])?;
-        let v = t.to_f64_vec();
-        if let Some(i) = v.iter().position(|x| !x.is_finite()) {
-            let why = format!("value at flat index {i} is not finite");
-            return Err(Error::invalid(path.display().to_string(), why));
-        }
-        v.chunks(3).map(|c| [c[0], c[1], c[2]]).collect()
+        LossWeights::read_rgb(&path, h, w)?
     } else if let Some(c) = ctx.param::<f64>("w_const")? {
         if !c.is_finite() {
             return Err(ctx.bad("w_const", "must be finite"));
@@ -165,17 +158,18 @@ pub fn render_grads(ctx: &OpCtx, out: &mut Outputs) -> Result<()> {
         reduce: Reduce::Sorted,
         per_sample: analytic,
     };
-    let none = ProbeSpec::default();
-    match ctx.precision {
-        Precision::F32 => {
-            let g = f_diff::<f32>(&cam, &gen, &p, &w.upstream(), &opt, None, &ctx.budget)?;
-            grad_outputs(&g, &p, &none, out)
-        }
-        Precision::F64 => {
-            let g = f_diff::<f64>(&cam, &gen, &p, &w.upstream(), &opt, None, &ctx.budget)?;
-            grad_outputs(&g, &p, &none, out)
-        }
-    }
+    by_precision!(ctx, grads_into(ctx, (&cam, &gen, &p), &w, &opt, out))
+}
+
+fn grads_into<F: Real>(
+    ctx: &OpCtx,
+    (cam, gen, p): (&Camera, &RayGen, &VolumeParams),
+    w: &LossWeights,
+    opt: &DiffOptions,
+    out: &mut Outputs,
+) -> Result<()> {
+    let g = f_diff::<F>(cam, gen, p, &w.upstream(), opt, None, &ctx.budget)?;
+    grad_outputs(&g, p, &ProbeSpec::default(), out)
 }
 
 fn op_grad_fd(ctx: &OpCtx) -> Result<Outputs> {

@@ -14,6 +14,7 @@ use crate::tensor::{Outputs, Tensor};
 use crate::volume::diff::f_diff;
 use crate::volume::field::hash::{HashMlp, HashMlpDesc};
 use crate::volume::field::FieldDesc;
+use crate::volume::grad_outputs::hash_outputs;
 use crate::volume::referee::hash_probes as referee;
 use crate::volume::VolumeParams;
 
@@ -87,24 +88,8 @@ fn op_mlp_grad_fd(ctx: &OpCtx) -> Result<Outputs> {
     referee::mlp_grad_fd(&d, &pts, seed)
 }
 
-#[derive(Clone, Copy, Debug, serde::Deserialize)]
-#[serde(deny_unknown_fields)]
-struct Probes {
-    table: u32,
-    mlp: u32,
-    #[serde(default)]
-    seed: u32,
-}
-
 fn probe_indices(ctx: &OpCtx, d: &HashMlpDesc) -> Result<Vec<usize>> {
-    let p: Probes = ctx.param_or(
-        "probes",
-        Probes {
-            table: 12,
-            mlp: 12,
-            seed: 0,
-        },
-    )?;
+    let p: referee::ProbeCounts = ctx.param_or("probes", referee::ProbeCounts::default())?;
     Ok(referee::probe_indices(d, p.table, p.mlp, p.seed))
 }
 
@@ -121,17 +106,8 @@ fn grad_in<F: Real>(ctx: &OpCtx) -> Result<Outputs> {
         None,
         &ctx.budget,
     )?;
-    let dh = g
-        .dhash
-        .ok_or_else(|| Error::invalid(ctx.case_id, "f_diff returned no dhash"))?;
     let mut out = Outputs::default();
-    out.tensor(
-        "dhash_probe",
-        Tensor::real(&[idx.len()], idx.iter().map(|&i| dh[i]).collect())?,
-    );
-    out.tensor("dhash", Tensor::real(&[dh.len()], dh)?);
-    out.tensor("dcam", Tensor::real(&[6], g.dcam.to_vec())?);
-    out.metric("time_s", g.time_s);
+    hash_outputs(g, &idx, &mut out)?;
     Ok(out)
 }
 

@@ -26,27 +26,27 @@
 
 use super::{BackendKind, OpCtx};
 use crate::budget::bytes_for;
-use crate::camera::Camera;
 use crate::error::{Error, Result};
 use crate::gpu::voxels::GpuCast;
 use crate::gpu::GpuContext;
-use crate::judge::measure::{peak_rss_bytes, timed, voxels as measure};
-use crate::rays::{RayGen, Rays};
+use crate::judge::measure::voxels::{self as measure, Sets};
+use crate::judge::measure::{peak_rss_bytes, timed};
+use crate::rays::Rays;
 use crate::real::Real;
 use crate::scene::voxels::VoxelScene;
-use crate::tensor::{Outputs, Tensor};
+use crate::tensor::Outputs;
 use crate::voxels::attributes::{for_scene, AttrForm};
-use crate::voxels::batch::Batch;
+use crate::voxels::batch::{Batch, RaySource};
 use crate::voxels::cast::{CastParams, CastReal};
 use crate::voxels::checks::{attribute_quality, contour_error, mesh_referee};
 use crate::voxels::contour::fit_all;
-use crate::voxels::dag::{build_dag, Dag};
-use crate::voxels::gpu::{cast_batch, cast_camera, hits_from_gpu};
+use crate::voxels::dag::Dag;
+use crate::voxels::gpu::{cast_batch, cast_camera};
 use crate::voxels::octree::{build, Octree};
-use crate::voxels::outputs::{build_metrics, dag_metrics};
+use crate::voxels::outputs::{build_metrics, dag_metrics, gpu_cast_outputs};
 use crate::voxels::referee_bounds::sphere_bounds;
 use crate::voxels::referee_dag::distinct_nodes_per_level;
-use crate::voxels::render::{attr_image, referee_all, Structure};
+use crate::voxels::render::{attr_image, referee_all};
 use crate::voxels::shape::Shape;
 use crate::voxels::through::{CastPath, Through};
 
@@ -79,40 +79,18 @@ fn load(ctx: &OpCtx) -> Result<VoxelScene> {
     crate::scene::voxels::parse(ctx.scene()?)
 }
 
-/// The scene's camera and generator, at `size` x `size` pixels when given.
-fn view(sc: &VoxelScene, size: Option<u32>) -> Result<(Camera, RayGen)> {
-    let (cam, mut gen) = sc.view.build()?;
-    let Some(s) = size else { return Ok((cam, gen)) };
-    (gen.width, gen.height, gen.roi) = (s, s, None);
-    Ok((sc.view.camera.build(s, s)?, gen))
-}
-
 /// The case's rays (module doc).
 fn batch<F: Real>(ctx: &OpCtx, sc: &VoxelScene) -> Result<Batch<F>> {
-    let src: String = ctx.param_or("rays", "camera".to_string())?;
-    let seed: u32 = ctx.param_or("seed", ctx.seed)?;
-    let count: u32 = ctx.param_or("count", 4096)?;
     if let Some(t) = ctx.rays {
-        return Ok(Batch::replay(
-            Rays::<F>::from_tensor(t, "--rays")?,
-            sc.view.near,
-            sc.view.far,
-        ));
+        let r = Rays::<F>::from_tensor(t, "--rays")?;
+        return Ok(Batch::replay(r, sc.view.near, sc.view.far));
     }
-    match src.as_str() {
-        "camera" => {
-            let (cam, gen) = view(sc, None)?;
-            Batch::camera(&cam, &gen, &ctx.budget)
-        }
-        "hard" | "incoherent" => {
-            Batch::<F>::check_budget(count, src == "hard", &ctx.budget)?;
-            Ok(match src.as_str() {
-                "hard" => Batch::hard(&sc.shape, sc.depth, count, seed),
-                _ => Batch::incoherent(count, seed),
-            })
-        }
-        o => Err(ctx.bad("rays", format!("{o:?} is not camera, hard or incoherent"))),
-    }
+    let src = ctx.param_or("rays", RaySource::Camera)?;
+    let (count, seed) = (
+        ctx.param_or("count", 4096)?,
+        ctx.param_or("seed", ctx.seed)?,
+    );
+    sc.batch(src, count, seed, &ctx.budget)
 }
 
 fn render_in<F: CastReal>(
@@ -139,22 +117,10 @@ fn render_in<F: CastReal>(
     Ok(out)
 }
 
-/// The scene's DAG and contours, when it asks for them.
-fn parts(ctx: &OpCtx, sc: &VoxelScene, tree: &Octree) -> Result<(Option<Dag>, Option<Vec<u32>>)> {
-    let dag = match sc.structure {
-        Structure::Octree => None,
-        Structure::Dag => Some(build_dag(tree, &ctx.budget)?),
-    };
-    Ok((
-        dag,
-        sc.contours.then(|| fit_all(&sc.shape, tree)).transpose()?,
-    ))
-}
-
 fn render(ctx: &OpCtx) -> Result<Outputs> {
     let sc = load(ctx)?;
     let tree = build(&sc.shape, sc.depth, &ctx.budget)?;
-    let (dag, cs) = parts(ctx, &sc, &tree)?;
+    let (dag, cs) = sc.extras(&tree, &ctx.budget)?;
     let th = Through::pick(&tree, dag.as_ref(), cs.as_deref());
     let mut out = if ctx.backend == BackendKind::Cpu {
         by_precision!(ctx, render_in(ctx, &sc, th, (&tree, dag.as_ref())))?
@@ -166,11 +132,7 @@ fn render(ctx: &OpCtx) -> Result<Outputs> {
         let (r, wall, _) = timed(|| gpu_run(ctx, &sc, th, ctx.dump));
         let (cast, b, _) = r?;
         let mut out = Outputs::default();
-        out.metric("wall_s", wall)
-            .counter("kernel_max_iter", cast.max_iter as u64);
-        let hits = cast.hits.iter().filter(|h| h.hit()).count() as u64;
-        let h = hits_from_gpu(&cast.hits);
-        b.cast_outputs((h, None), (cast.gpu_s, hits), sc.depth, ctx.dump, &mut out)?;
+        gpu_cast_outputs(&cast, b, (wall, sc.depth, ctx.dump), &mut out)?;
         out
     };
     if let Some(g) = &dag {
@@ -228,21 +190,16 @@ fn sphere_bounds_op(ctx: &OpCtx) -> Result<Outputs> {
 }
 
 fn bench_in<F: CastReal>(ctx: &OpCtx, sc: &VoxelScene, tree: &Octree) -> Result<Outputs> {
-    let count: u32 = ctx.param_or("count", 1 << 20)?;
-    let size: u32 = ctx.param_or("size", 1024)?;
-    let seed: u32 = ctx.param_or("seed", ctx.seed)?;
+    let size = Some(ctx.param_or("size", 1024)?);
+    let (count, seed) = (
+        ctx.param_or("count", 1 << 20)?,
+        ctx.param_or("seed", ctx.seed)?,
+    );
     let stride: usize = ctx.param_or("referee_stride", 16usize)?.max(1);
+    let what = ("voxels.bench rays and results", 160);
+    let sets = Sets::<F>::new(sc, (size, count, seed), what, &ctx.budget)?;
     let mut out = Outputs::default();
-    out.metric("threads", rayon::current_num_threads() as f64);
-    build_metrics(&mut out, tree);
-    let bytes = bytes_for(count as u64 + size as u64 * size as u64, 160);
-    ctx.budget.check("voxels.bench rays and results", bytes)?;
-    let (cam, gen) = view(sc, Some(size))?;
-    let coherent = Batch::<F>::camera(&cam, &gen, &ctx.budget)?;
-    let inc = Batch::<F>::incoherent(count, seed);
-    let sets = [("coherent", &coherent), ("incoherent", &inc)];
-    let params = |b: &Batch<F>| b.params(sc.lod, sc.max_iter);
-    measure::octree_vs_referee(tree, (&sc.shape, sc.depth), sets, params, stride, &mut out);
+    measure::bench(sc, tree, &sets, stride, &mut out);
     Ok(out)
 }
 
@@ -255,49 +212,30 @@ fn bench(ctx: &OpCtx) -> Result<Outputs> {
     Ok(out)
 }
 
-fn per_level(v: &[u64]) -> Result<Tensor> {
-    Tensor::from_shape_vec(&[v.len()], v.iter().map(|&x| x as f64).collect())
-}
-
-fn dag_bench_in<F: CastReal>(
+fn dag_in<F: CastReal>(
     ctx: &OpCtx,
     sc: &VoxelScene,
     tree: &Octree,
     out: &mut Outputs,
 ) -> Result<()> {
-    let g = build_dag(tree, &ctx.budget)?;
-    dag_metrics(out, &g);
-    let t = &tree.stats;
-    out.metric(
-        "octree_over_dag_bytes",
-        t.bytes as f64 / g.stats.bytes as f64,
-    );
-    let per_voxel = if t.solid_voxels == 0 {
-        0.0
-    } else {
-        g.stats.bytes as f64 / t.solid_voxels as f64
-    };
-    out.metric("dag_bytes_per_voxel", per_voxel);
-    out.tensor("nodes_per_level", per_level(&g.stats.nodes_per_level)?);
     let count: u32 = ctx.param_or("count", 0)?;
-    if count == 0 {
-        return Ok(());
-    }
-    let seed: u32 = ctx.param_or("seed", ctx.seed)?;
+    let sets = match count {
+        0 => None,
+        _ => Some(Sets::<F>::new(
+            sc,
+            (None, count, ctx.param_or("seed", ctx.seed)?),
+            ("voxels.dag rays", 0),
+            &ctx.budget,
+        )?),
+    };
     let repeats: u32 = ctx.param_or("repeats", 3u32)?.max(1);
-    let (cam, gen) = view(sc, None)?;
-    let coherent = Batch::<F>::camera(&cam, &gen, &ctx.budget)?;
-    let inc = Batch::<F>::incoherent(count, seed);
-    let params = |b: &Batch<F>| b.params(sc.lod, sc.max_iter);
-    measure::octree_vs_dag(
+    measure::dag_bench(
+        sc,
         tree,
-        &g,
-        [("coherent", &coherent), ("incoherent", &inc)],
-        params,
-        repeats,
+        sets.as_ref().map(|s| (s, repeats)),
+        &ctx.budget,
         out,
-    );
-    Ok(())
+    )
 }
 
 fn dag_op(ctx: &OpCtx) -> Result<Outputs> {
@@ -305,7 +243,7 @@ fn dag_op(ctx: &OpCtx) -> Result<Outputs> {
     let tree = build(&sc.shape, sc.depth, &ctx.budget)?;
     let mut out = Outputs::default();
     build_metrics(&mut out, &tree);
-    by_precision!(ctx, dag_bench_in(ctx, &sc, &tree, &mut out))?;
+    by_precision!(ctx, dag_in(ctx, &sc, &tree, &mut out))?;
     Ok(out)
 }
 
@@ -314,23 +252,16 @@ fn dag_referee(ctx: &OpCtx) -> Result<Outputs> {
     let counts = distinct_nodes_per_level(&sc.shape, sc.depth)?;
     let mut out = Outputs::default();
     out.counter("nodes", counts.iter().sum());
-    out.tensor("nodes_per_level", per_level(&counts)?);
+    out.tensor("nodes_per_level", measure::per_level(&counts)?);
     Ok(out)
 }
 
 fn contour_in<F: CastReal>(ctx: &OpCtx, sc: &VoxelScene, radius: f64) -> Result<Outputs> {
     let tree = build(&sc.shape, sc.depth, &ctx.budget)?;
     let cs = fit_all(&sc.shape, &tree)?;
-    let (cam, gen) = view(sc, None)?;
-    let b = Batch::<F>::camera(&cam, &gen, &ctx.budget)?;
-    contour_error(
-        &tree,
-        &cs,
-        &b,
-        &b.params(None, sc.max_iter),
-        radius,
-        sc.depth,
-    )
+    let b = sc.batch::<F>(RaySource::Camera, 0, 0, &ctx.budget)?;
+    let p = b.params(None, sc.max_iter);
+    contour_error(&tree, &cs, &b, &p, radius, sc.depth)
 }
 
 fn contour_op(ctx: &OpCtx) -> Result<Outputs> {
@@ -340,8 +271,8 @@ fn contour_op(ctx: &OpCtx) -> Result<Outputs> {
 }
 
 /// Casts the case's rays on the GPU: camera rays are generated there (and
-/// read back when `keep_rays`), other sources are uploaded. The cast, the
-/// rays as the kernel saw them, the cast parameters.
+/// read back when `keep`), other sources are uploaded. The cast, the rays
+/// as the kernel saw them, the cast parameters.
 fn gpu_run(
     ctx: &OpCtx,
     sc: &VoxelScene,
@@ -349,20 +280,21 @@ fn gpu_run(
     keep: bool,
 ) -> Result<(GpuCast, Batch<f32>, CastParams)> {
     let g = th.upload(GpuContext::get()?)?;
-    if ctx.rays.is_none() && ctx.param_or("rays", "camera".to_string())? == "camera" {
-        let (cam, gen) = view(sc, None)?;
-        let p = CastParams {
-            near: gen.near,
-            far: gen.far,
-            lod: sc.lod,
-            max_iter: sc.max_iter,
-        };
-        let (cast, b) = cast_camera(&g, (&cam, &gen), &p, keep, &ctx.budget)?;
-        return Ok((cast, b, p));
+    if ctx.rays.is_some() || ctx.param_or("rays", RaySource::Camera)? != RaySource::Camera {
+        let b: Batch<f32> = batch(ctx, sc)?;
+        let p = b.params(sc.lod, sc.max_iter);
+        return Ok((cast_batch(&g, &b, &p, &ctx.budget)?, b, p));
     }
-    let b: Batch<f32> = batch(ctx, sc)?;
-    let p = b.params(sc.lod, sc.max_iter);
-    Ok((cast_batch(&g, &b, &p, &ctx.budget)?, b, p))
+    let (cam, gen) = sc.view_at(None)?;
+    let (near, far, lod, max_iter) = (gen.near, gen.far, sc.lod, sc.max_iter);
+    let p = CastParams {
+        near,
+        far,
+        lod,
+        max_iter,
+    };
+    let (cast, b) = cast_camera(&g, (&cam, &gen), &p, keep, &ctx.budget)?;
+    Ok((cast, b, p))
 }
 
 fn gpu_parity(ctx: &OpCtx) -> Result<Outputs> {
@@ -372,7 +304,7 @@ fn gpu_parity(ctx: &OpCtx) -> Result<Outputs> {
         return Err(ctx.bad("ulp_margin", "must be finite and >= 0"));
     }
     let tree = build(&sc.shape, sc.depth, &ctx.budget)?;
-    let (dag, cs) = parts(ctx, &sc, &tree)?;
+    let (dag, cs) = sc.extras(&tree, &ctx.budget)?;
     let th = Through::pick(&tree, dag.as_ref(), cs.as_deref());
     let (cast, b, p) = gpu_run(ctx, &sc, th, true)?;
     let scene = (&sc.shape, sc.depth);
@@ -380,35 +312,17 @@ fn gpu_parity(ctx: &OpCtx) -> Result<Outputs> {
 }
 
 fn gpu_bench(ctx: &OpCtx) -> Result<Outputs> {
-    let count: u32 = ctx.param_or("count", 1 << 18)?;
-    let size: u32 = ctx.param_or("size", 512)?;
-    let seed: u32 = ctx.param_or("seed", ctx.seed)?;
     let sc = load(ctx)?;
-    let bytes = bytes_for(count as u64 + size as u64 * size as u64, 200);
-    ctx.budget
-        .check("voxels.gpu_bench rays and results", bytes)?;
+    let size = Some(ctx.param_or("size", 512)?);
+    let (count, seed) = (
+        ctx.param_or("count", 1 << 18)?,
+        ctx.param_or("seed", ctx.seed)?,
+    );
+    let what = ("voxels.gpu_bench rays and results", 200);
+    let sets = Sets::<f32>::new(&sc, (size, count, seed), what, &ctx.budget)?;
     let tree = build(&sc.shape, sc.depth, &ctx.budget)?;
-    let dag = build_dag(&tree, &ctx.budget)?;
     let mut out = Outputs::default();
-    out.metric("threads", rayon::current_num_threads() as f64);
-    build_metrics(&mut out, &tree);
-    dag_metrics(&mut out, &dag);
-    let (cam, gen) = view(&sc, Some(size))?;
-    let coh = Batch::<f32>::camera(&cam, &gen, &ctx.budget)?;
-    let inc = Batch::<f32>::incoherent(count, seed);
-    measure::cpu_vs_gpu(
-        &[
-            ("octree", Through::Octree(&tree)),
-            ("dag", Through::Dag(&dag)),
-        ],
-        GpuContext::get()?,
-        (&cam, &gen),
-        &coh,
-        &inc,
-        |b: &Batch<f32>| b.params(sc.lod, sc.max_iter),
-        &ctx.budget,
-        &mut out,
-    )?;
+    measure::gpu_bench(&sc, &tree, &sets, GpuContext::get()?, &ctx.budget, &mut out)?;
     Ok(out)
 }
 

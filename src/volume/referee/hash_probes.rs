@@ -52,6 +52,27 @@ pub fn point_g(seed: u32, q: u32) -> [f64; 4] {
     [0, 1, 2, 3].map(|c| rand_f64(seed, q, 1, c) - 0.5)
 }
 
+/// `params.probes` of the hash gradient cases: `table` table probes and
+/// `mlp` network probes (default 12 each), drawn with `seed`.
+#[derive(Clone, Copy, Debug, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ProbeCounts {
+    pub table: u32,
+    pub mlp: u32,
+    #[serde(default)]
+    pub seed: u32,
+}
+
+impl Default for ProbeCounts {
+    fn default() -> Self {
+        ProbeCounts {
+            table: 12,
+            mlp: 12,
+            seed: 0,
+        }
+    }
+}
+
 /// Flat parameter indices of `table` table probes and `mlp` network probes.
 pub fn probe_indices(d: &HashMlpDesc, table: u32, mlp: u32, seed: u32) -> Vec<usize> {
     let (nl, nf, t) = (d.cfg.levels, d.cfg.features, d.cfg.table_size());

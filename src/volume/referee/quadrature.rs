@@ -200,6 +200,26 @@ pub fn quadrature(rays: &Rays<f64>, p: &VolumeParams) -> Quadrature {
     }
 }
 
+/// `n` probe points uniform in [-1.5, 1.5]^3 (`rand(seed, i, 0, axis)`),
+/// the same on both sides of the grid-probe comparison.
+pub fn probe_points(n: u32, seed: u32) -> Vec<[f64; 3]> {
+    (0..n)
+        .map(|i| [0, 1, 2].map(|d| rand_f64(seed, i, 0, d) * 3.0 - 1.5))
+        .collect()
+}
+
+/// The referee's probe of `g` at `pts`: `value` (trilinear, channel 0),
+/// `inside` (the grid's box) and `beyond` ([`beyond_one_cell`]).
+pub fn grid_probe_outputs(pts: &[[f64; 3]], g: &GridDesc) -> Result<Outputs> {
+    let (v, inside) = grid_probe(pts, g);
+    let mut out = Outputs::default();
+    out.tensor("value", Tensor::real(&[pts.len()], v)?);
+    out.tensor("inside", Tensor::from_shape_vec(&[pts.len()], inside)?);
+    let beyond = beyond_one_cell(pts, g);
+    out.tensor("beyond", Tensor::from_shape_vec(&[pts.len()], beyond)?);
+    Ok(out)
+}
+
 /// Reference trilinear value of channel 0 at each point, and whether the
 /// point lies inside the grid's box.
 pub fn grid_probe(pts: &[[f64; 3]], g: &GridDesc) -> (Vec<f64>, Vec<u8>) {
