@@ -11,7 +11,8 @@ use crate::volume::fit::{fit, FitConfig, Model};
 
 ops! {
     "volume.fit" Cpu op_fit ["model", "n", "views", "held_out", "side", "iters", "dt", "lr_sigma", "lr_color",
-        "lr_hash", "seed", "levels", "features", "log2_table", "n_min", "n_max"]
+        "lr_hash", "seed", "levels", "features", "log2_table", "n_min", "n_max", "stages", "tv_sigma", "tv_color",
+        "lr_final"]
         "fit a dense grid or a hash-grid field to views of a structured target (Adam, f_diff); loss per iteration, PSNR on held-out views";
 }
 
@@ -40,6 +41,10 @@ fn op_fit(ctx: &OpCtx) -> Result<Outputs> {
         lr_color: ctx.param_or("lr_color", 0.05)?,
         lr_hash: ctx.param_or("lr_hash", 0.01)?,
         seed: ctx.param_or("seed", 0)?,
+        stages: ctx.param_or("stages", 1)?,
+        tv_sigma: ctx.param_or("tv_sigma", 0.0)?,
+        tv_color: ctx.param_or("tv_color", 0.0)?,
+        lr_final: ctx.param_or("lr_final", 1.0)?,
     };
     cfg.validate(&format!("{} params", ctx.case_id))?;
     let r = fit(&cfg, &ctx.budget)?;
