@@ -854,3 +854,48 @@ fn compare_counts_a_renamed_or_errored_scenario_as_a_regression() {
         assert!(text(&o).contains("Regression"), "{f}: {}", text(&o));
     }
 }
+
+/// `hpjudge render SCENE args...` with a fresh out dir.
+fn render(scene: &str, args: &[&str]) -> Output {
+    hpjudge()
+        .args(["render", scene])
+        .args(args)
+        .arg("--out")
+        .arg(tmp("render"))
+        .output()
+        .unwrap()
+}
+
+#[test]
+fn path_tracer_refuses_f64_rays_grad_from_and_absurd_spp_before_work() {
+    let cornell = "TESTS/scenes/cornell_box.yaml";
+    let small = ["--set", "width=8", "--set", "height=8", "--set", "spp=1"];
+    let npy = tmp("refuse").join("w.npy");
+    std::fs::write(&npy, b"not read").unwrap();
+    let npy = npy.to_str().unwrap();
+    for (args, expect) in [
+        (vec!["--precision", "f64"], "does not run on cpu in f64"),
+        (vec!["--grad-from", npy], "--grad-from is not supported"),
+        (vec!["--rays", npy], "--rays is not supported"),
+    ] {
+        let o = render(cornell, &[&small[..], &args].concat());
+        assert_ne!(o.status.code(), Some(0), "{args:?}: {}", text(&o));
+        assert!(text(&o).contains(expect), "{args:?}: {}", text(&o));
+    }
+    let mut c = hpjudge()
+        .args(["render", cornell, "--set", "spp=4294967295", "--out"])
+        .arg(tmp("spp"))
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    let s = wait_for(&mut c, 10.0);
+    let o = c.wait_with_output().unwrap();
+    assert!(s.is_some(), "spp=4294967295 still rendering after 10 s");
+    assert_eq!(o.status.code(), Some(2), "{}", text(&o));
+    assert!(
+        text(&o).contains("spp") && text(&o).contains("work budget"),
+        "{}",
+        text(&o)
+    );
+}

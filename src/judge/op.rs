@@ -125,6 +125,10 @@ pub enum Support {
     Cpu,
     /// The CPU in f32 and f64, the GPU in f32.
     CpuGpuF32,
+    /// The CPU in f32 only (a renderer with no f64 instance: the path tracer).
+    CpuF32,
+    /// The CPU and the GPU, f32 only.
+    F32,
     /// The GPU in f32 only (a parity or bench operation that runs the CPU
     /// beside the GPU itself).
     GpuF32,
@@ -140,6 +144,8 @@ impl Support {
             Support::Cpu => backend == BackendKind::Cpu,
             Support::CpuGpuF32 => backend == BackendKind::Cpu || precision == Precision::F32,
             Support::GpuF32 => backend == BackendKind::Gpu && precision == Precision::F32,
+            Support::CpuF32 => backend == BackendKind::Cpu && precision == Precision::F32,
+            Support::F32 => precision == Precision::F32,
             Support::Any => true,
         }
     }
@@ -150,6 +156,8 @@ impl Support {
             Support::Cpu => "cpu f32/f64",
             Support::CpuGpuF32 => "cpu f32/f64, gpu f32",
             Support::GpuF32 => "gpu f32",
+            Support::CpuF32 => "cpu f32",
+            Support::F32 => "cpu f32, gpu f32",
             Support::Any => "any backend and precision",
         }
     }

@@ -26,6 +26,10 @@ pub struct RenderRequest<'a> {
     pub budget: MemBudget,
 }
 
+/// Renderers whose `render` operation replays `--rays` (reads `OpCtx::rays`);
+/// the others are refused rather than rendering their camera silently.
+const REPLAYS_RAYS: [&str; 3] = ["rays", "volume", "voxels"];
+
 /// Loads the scene and runs `<renderer>.render` on it.
 pub fn render(req: &RenderRequest) -> Result<Outputs> {
     let doc = SceneDoc::load(req.scene, req.set)?;
@@ -34,6 +38,14 @@ pub fn render(req: &RenderRequest) -> Result<Outputs> {
     let op = ops::find(&name).ok_or_else(|| {
         Error::NotSupported(format!("renderer {renderer:?} has no `render` operation"))
     })?;
+    if req.grad_from.is_some() && !op.params.contains(&"grad_from") {
+        let why = format!("{name} has no gradients: --grad-from is not supported");
+        return Err(Error::NotSupported(why));
+    }
+    if req.rays.is_some() && !REPLAYS_RAYS.contains(&renderer.as_str()) {
+        let why = format!("{name} does not replay rays: --rays is not supported");
+        return Err(Error::NotSupported(why));
+    }
     let rays_t = req
         .rays
         .map(|p| Tensor::read_npy_within(p, req.budget))

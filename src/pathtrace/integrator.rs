@@ -232,6 +232,14 @@ impl RenderParams {
         if self.spp == 0 {
             return Err(Error::invalid("spp", "must be >= 1"));
         }
+        let paths = self.width as u64 * self.height as u64 * self.spp as u64;
+        if paths > MAX_PATHS {
+            let why = format!(
+                "{} x {} pixels x {} spp = {paths} paths is over the work budget of 2^36 per render",
+                self.width, self.height, self.spp
+            );
+            return Err(Error::invalid("spp", why));
+        }
         // Dimensions of the deepest vertex must fit in u32.
         if self.max_bounces > 1 << 24 {
             return Err(Error::invalid(
@@ -242,6 +250,11 @@ impl RenderParams {
         Ok(())
     }
 }
+
+/// The work budget of one render: width x height x spp paths, 2^36
+/// (6.9e10; about 19 hours at 1e6 paths per second). Larger is refused on
+/// load instead of running for days.
+pub const MAX_PATHS: u64 = 1 << 36;
 
 /// A rendered image: per-pixel mean radiance and the variance of that mean
 /// (unbiased sample variance / spp; 0 when spp = 1), row-major, row 0 on top.

@@ -3,7 +3,7 @@
 //! | key | meaning | default |
 //! | --- | --- | --- |
 //! | `camera`, `width`, `height` | the shared view block (`scene/rays.rs`); `roi`, `aabb`, `near`, `far`, `jitter` are not used here and refused | 64 x 64 |
-//! | `spp` | samples per pixel (box filter, one jittered position each) | 64 |
+//! | `spp` | samples per pixel (box filter, one jittered position each); width x height x spp at most 2^36 paths (`MAX_PATHS`) | 64 |
 //! | `seed` | first key of `rand(seed, pixel, sample, dim)` | 0 |
 //! | `max_bounces` | most scattering events on a path (camera ray hitting a light = 0) | 64 |
 //! | `rr_depth` | bounces before Russian roulette starts | 5 |

@@ -22,31 +22,31 @@ use crate::stats::image::{firefly_fraction, mean_variance, mse};
 use crate::tensor::{Outputs, Tensor};
 
 ops! {
-    "pathtrace.render" CpuGpuF32 render_op []
+    "pathtrace.render" F32 render_op []
         "path-traced image (H, W, 3) and variance of the pixel mean; metrics time_s, paths_per_s";
-    "pathtrace.intersect_list" Cpu intersect_list ["rays", "shapes"]
+    "pathtrace.intersect_list" CpuF32 intersect_list ["rays", "shapes"]
         "renderer intersection of params.rays ([ox,oy,oz,dx,dy,dz]) with params.shapes: t, hit, index, normal";
     "pathtrace.intersect_reference" Any intersect_reference_op ["rays", "shapes"]
         "f64 closed forms (geometric sphere, Cramer quad) for the rays and shapes of intersect_list";
-    "pathtrace.self_intersection" Cpu self_intersection_op ["rays"]
+    "pathtrace.self_intersection" CpuF32 self_intersection_op ["rays"]
         "acne_fraction: rays spawned at camera hit points that re-hit their own surface at once";
-    "pathtrace.bsdf_checks" Cpu bsdf_checks_op ["thetas", "samples", "alpha", "roughness"]
+    "pathtrace.bsdf_checks" CpuF32 bsdf_checks_op ["thetas", "samples", "alpha", "roughness"]
         "pdf_integral, albedo, reciprocity_err, weight_err, fresnel_err, chi2_p and chi2_alpha (Sidak) per material and wo";
-    "pathtrace.furnace" CpuGpuF32 furnace ["expect"]
+    "pathtrace.furnace" F32 furnace ["expect"]
         "render + mean (3,), z-score of the mean against params.expect, max pixel_err";
-    "pathtrace.convergence" Cpu convergence ["spp", "seeds", "ref_spp", "clamp"]
+    "pathtrace.convergence" CpuF32 convergence ["spp", "seeds", "ref_spp", "clamp"]
         "rmse (clamped to [0,1]) vs a ref_spp render over params.spp x params.seeds; log-log slope";
-    "pathtrace.fireflies" Cpu fireflies ["factor"]
+    "pathtrace.fireflies" CpuF32 fireflies ["factor"]
         "render + firefly_fraction: pixels whose luminance exceeds 10x their 3x3 median";
-    "pathtrace.features" Cpu features ["regions"]
+    "pathtrace.features" CpuF32 features ["regions"]
         "render + mean rgb/luminance/(r/g) of named world-space regions of named shapes (params.regions)";
-    "pathtrace.rmse_vs_reference" CpuGpuF32 rmse_vs_reference ["reference"]
+    "pathtrace.rmse_vs_reference" F32 rmse_vs_reference ["reference"]
         "render + rmse (clamped [0,1]) and rmse_raw against params.reference (an (H, W, 3) float32 .npy)";
-    "pathtrace.speed_error" CpuGpuF32 speed_error ["spp", "ref_spp", "ref_seed", "reference"]
+    "pathtrace.speed_error" F32 speed_error ["spp", "ref_spp", "ref_seed", "reference"]
         "seconds and rmse (clamped [0,1] and raw) vs a ref_spp render (or params.reference .npy) per params.spp; plot_image";
-    "pathtrace.parity" CpuGpuF32 parity ["cpu_seed", "alpha"]
+    "pathtrace.parity" F32 parity ["cpu_seed", "alpha"]
         "run's backend vs CPU (seed params.cpu_seed) per pixel z-test: p_min, sidak_alpha (params.alpha), z2_mean, max_abs_z, zero_var_mismatch";
-    "pathtrace.reflectance_applied" Cpu reflectance_op ["thetas", "samples", "alpha", "reflectance"]
+    "pathtrace.reflectance_applied" CpuF32 reflectance_op ["thetas", "samples", "alpha", "reflectance"]
         "rough conductor: eval_ratio and weight_ratio (reflectance r over 1, same directions) and expected = r, per wo angle and channel";
 }
 
