@@ -172,7 +172,7 @@ impl<F: Real> Event<F> {
     }
 
     #[inline]
-    fn fires(&self, g0: F, g1: F) -> bool {
+    pub fn fires(&self, g0: F, g1: F) -> bool {
         let z = F::zero();
         if self.rising {
             g0 < z && g1 >= z
@@ -507,6 +507,33 @@ fn locate<F: Real, const N: usize, H: Hamiltonian<F, N>>(
     best
 }
 
+/// The earliest of `events` (with `gs[i] = g_i(y)`) crossed in the step
+/// `y -> y1` of length `h`: its index, the fraction `theta` of the step and
+/// the located state. Shared by [`trace`] and the lane path
+/// ([`super::lane_trace`]), so both locate an event the same way.
+pub fn crossed<F: Real, const N: usize, H: Hamiltonian<F, N>>(
+    sys: &H,
+    opt: &Options<F>,
+    events: &[Event<F>],
+    gs: &[F],
+    y: &[F; N],
+    y1: &[F; N],
+    h: F,
+) -> Option<(usize, F, [F; N])> {
+    let mut hit: Option<(usize, F, [F; N])> = None;
+    for (i, e) in events.iter().enumerate() {
+        let g1 = e.g(y1);
+        if e.fires(gs[i], g1) {
+            if let Some((th, yc)) = locate(sys, &opt.tier, e, y, h, gs[i], g1, opt.project) {
+                if hit.as_ref().is_none_or(|(_, t, _)| th < *t) {
+                    hit = Some((i, th, yc));
+                }
+            }
+        }
+    }
+    hit
+}
+
 /// Integrates one ray from `y0` until an event fires, `max_steps` accepted
 /// steps, a non-finite state or a failed step; `on_step(lambda, y)` sees
 /// every accepted state (the start included) for polyline dumps. Call
@@ -616,18 +643,7 @@ pub fn trace<F: Real, const N: usize, H: Hamiltonian<F, N>>(
                 k1 = sys.rhs(&y1);
             }
         }
-        // Earliest event crossed in this step, located.
-        let mut hit: Option<(usize, F, [F; N])> = None;
-        for (i, e) in events[..ne].iter().enumerate() {
-            let g1 = e.g(&y1);
-            if e.fires(gs[i], g1) {
-                if let Some((th, yc)) = locate(sys, &opt.tier, e, &y, h, gs[i], g1, opt.project) {
-                    if hit.as_ref().is_none_or(|(_, t, _)| th < *t) {
-                        hit = Some((i, th, yc));
-                    }
-                }
-            }
-        }
+        let hit = crossed(sys, opt, &events[..ne], &gs[..ne], &y, &y1, h);
         out.steps += 1;
         out.err_est += local_err;
         if let Some((i, th, yc)) = hit {

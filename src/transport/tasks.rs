@@ -12,6 +12,7 @@
 
 use super::grin::Medium;
 use super::integrate::{check, trace, End, Event, EventKind, Options, Trace};
+use super::lane_trace::{trace_rays, Kernel};
 use super::metric::Spacetime;
 use crate::budget::{bytes_for, MemBudget};
 use crate::error::{Error, Result};
@@ -266,15 +267,29 @@ pub fn deflection_setup<F: Real>(
     Ok((ev, starts))
 }
 
-/// Traces every photon of `task`.
+/// Traces every photon of `task` with the fastest kernel of this CPU
+/// ([`Kernel::best`]).
 pub fn deflection<F: Real>(
     task: &Deflection<F>,
     opt: &Options<F>,
     budget: &MemBudget,
     dump: &[usize],
 ) -> Result<DeflectionOut<F>> {
+    deflection_with(task, opt, budget, dump, Kernel::best())
+}
+
+/// [`deflection`] with a chosen kernel: the lane path where it applies
+/// ([`super::lane_trace`]), the scalar loop elsewhere and for the dumped
+/// rays (their polylines are the scalar loop's steps).
+pub fn deflection_with<F: Real>(
+    task: &Deflection<F>,
+    opt: &Options<F>,
+    budget: &MemBudget,
+    dump: &[usize],
+    kernel: Kernel,
+) -> Result<DeflectionOut<F>> {
     let (ev, starts) = deflection_setup(task, opt, budget, dump)?;
-    let traces = par_collect("transport.deflection", starts.len(), |i| {
+    let scalar = |i: usize| {
         traced(
             &task.spacetime,
             starts[i],
@@ -283,7 +298,21 @@ pub fn deflection<F: Real>(
             dump.contains(&i),
             cart8,
         )
-    });
+    };
+    let traces = match trace_rays(&task.spacetime, &starts, opt, &ev, kernel) {
+        Some(ts) => ts
+            .into_iter()
+            .enumerate()
+            .map(|(i, t)| {
+                if dump.contains(&i) {
+                    scalar(i)
+                } else {
+                    (t, Vec::new())
+                }
+            })
+            .collect(),
+        None => par_collect("transport.deflection", starts.len(), scalar),
+    };
     Ok(deflection_out(task, traces, dump))
 }
 
