@@ -221,7 +221,7 @@ impl M8 {
     pub fn bits(self) -> u8 {
         let mut b = 0u8;
         for k in 0..LANES {
-            b |= ((self.0[k] & 1) as u8) << k;
+            b |= ((self.0[k] >> 31) as u8) << k;
         }
         b
     }

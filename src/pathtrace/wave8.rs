@@ -180,7 +180,8 @@ fn light_sample(
         (V8::default(), V8::default(), V8::default(), V8::default());
     let (mut area, mut rad) = (F8::default(), V8::default());
     for k in 0..LANES {
-        let r = &tab.lights[pick.0[k] as usize];
+        // One light (the Cornell box): every lane reads row 0.
+        let r = &tab.lights[if nl == 1 { 0 } else { pick.0[k] as usize }];
         c.set_lane(k, r.corner);
         eu.set_lane(k, r.u);
         ev.set_lane(k, r.v);
