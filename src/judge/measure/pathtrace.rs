@@ -2,10 +2,13 @@
 //! speed against error. `render(spp, seed)` renders the case's scene on its
 //! backend and returns the image and its seconds.
 
+use crate::budget::MemBudget;
 use crate::error::Result;
 use crate::judge::plot::{self, Chart, Series};
 use crate::pathtrace::integrator::Tracer;
 use crate::pathtrace::Image;
+use crate::pathtrace::RenderParams;
+use crate::scene::pathtrace::PathtraceScene;
 use crate::stats::image::{mean_variance, mse};
 use crate::stats::summary::{loglog_slope, median};
 use crate::tensor::{Outputs, Tensor};
@@ -42,18 +45,7 @@ pub fn convergence(
     Ok((rmse, slope))
 }
 
-/// [`speed_error_backends`] on the case's one backend (names unprefixed).
-pub fn speed_error(
-    spps: &[u32],
-    seed: u32,
-    reference: (&Image, f64),
-    render: impl Fn(u32, u32) -> Result<(Image, f64)>,
-    out: &mut Outputs,
-) -> Result<()> {
-    speed_error_backends(spps, seed, reference, &[("", &render)], out)
-}
-
-/// One backend's render for [`speed_error_backends`]: `(spp, seed) -> (image, seconds)`.
+/// One backend's render for [`speed_error`]: `(spp, seed) -> (image, seconds)`.
 pub type Render<'a> = &'a dyn Fn(u32, u32) -> Result<(Image, f64)>;
 
 /// Speed against error, one render per spp (seed `seed`) on each backend
@@ -64,7 +56,7 @@ pub type Render<'a> = &'a dyn Fn(u32, u32) -> Result<(Image, f64)>;
 /// every name is prefixed `<label>_`. `plot_image` draws log RMSE against
 /// log seconds, one series per backend, with the ideal Monte Carlo rate
 /// (slope -1/2 through the first point) as a guide.
-pub fn speed_error_backends(
+pub fn speed_error(
     spps: &[u32],
     seed: u32,
     (reference, noise): (&Image, f64),
@@ -117,19 +109,19 @@ pub fn speed_error_backends(
     Ok(())
 }
 
-/// The CPU paths ([`Tracer`]) on the same render, interleaved `repeats`
-/// times (`render(tracer)`, CPU seconds of this process by
-/// [`super::timed`]): per tracer the median `<tracer>_cpu_s` and
-/// `<tracer>_paths_per_cpu_s` (`paths` per render), the speed-ups
+/// The CPU paths ([`Tracer`]) on the same render of `s`, interleaved
+/// `repeats` times (CPU seconds of this process by [`super::timed`]): per
+/// tracer the median `<tracer>_cpu_s` and `<tracer>_paths_per_cpu_s`, the speed-ups
 /// `wavefront_over_scalar` and `wavefront_over_packet` (CPU-time ratios,
 /// > 1 = wavefront faster), and `same_image` (1 when the three images are
 /// bit-identical, else 0).
-pub fn tracers(
-    repeats: usize,
-    paths: f64,
-    render: impl Fn(Tracer) -> Result<Image>,
-    out: &mut Outputs,
-) -> Result<()> {
+pub fn tracers(s: &PathtraceScene, repeats: usize, budget: &MemBudget) -> Result<Outputs> {
+    let p = s.params;
+    let cam = s.camera.to_real::<f32>(p.width, p.height);
+    let paths = p.width as f64 * p.height as f64 * p.spp as f64;
+    let render =
+        |tracer| crate::pathtrace::render(&s.scene, &cam, &RenderParams { tracer, ..p }, budget);
+    let mut out = Outputs::default();
     let all = [Tracer::Scalar, Tracer::Packet, Tracer::Wavefront];
     let mut cpu = [vec![], vec![], vec![]];
     let mut images: Vec<Option<Image>> = vec![None, None, None];
@@ -153,5 +145,5 @@ pub fn tracers(
     };
     let ok = same(&images[0], &images[1]) && same(&images[0], &images[2]);
     out.metric("same_image", if ok { 1.0 } else { 0.0 });
-    Ok(())
+    Ok(out)
 }
