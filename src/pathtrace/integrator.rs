@@ -34,6 +34,7 @@ use super::packed::Packed;
 use super::shapes::{spawn_origin, Shape};
 use super::soa8::Soa8;
 use super::trace8::trace_paths8;
+use super::wave8::trace_paths_wave8;
 use crate::budget::{bytes_for, MemBudget};
 use crate::camera::RealCamera;
 use crate::error::{Error, Result};
@@ -71,6 +72,11 @@ impl PathRng {
         PathRng {
             key: pcg(pcg(pcg(seed) ^ pixel) ^ sample),
         }
+    }
+    /// `pcg(pcg(pcg(seed) ^ pixel) ^ sample)`, the per-sample key.
+    #[inline]
+    pub fn key(&self) -> u32 {
+        self.key
     }
     #[inline]
     pub fn f(&self, dim: u32) -> f32 {
@@ -213,10 +219,24 @@ pub struct RenderParams {
     pub seed: u32,
     pub max_bounces: u32,
     pub rr_depth: u32,
-    /// Trace paths eight at a time (`trace8::trace_paths8`, lanes refilled
-    /// as paths end); `false`: the scalar path, one ray at a time (the
-    /// referee). The same image.
-    pub packet: bool,
+    /// Which CPU path traces the samples (the same image from each).
+    pub tracer: Tracer,
+}
+
+/// The CPU paths of the renderer; each gives the scalar path's image bit
+/// for bit (cases `pt_packet_equals_scalar`, `pt_wavefront_equals_scalar`).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Tracer {
+    /// One path at a time ([`trace`]): the referee.
+    Scalar,
+    /// Eight paths at a time, rays tested eight at a time, each vertex
+    /// shaded one lane at a time ([`trace_paths8`]).
+    Packet,
+    /// Eight paths at a time, whole vertices in eight lanes
+    /// ([`trace_paths_wave8`]).
+    #[default]
+    Wavefront,
 }
 
 impl RenderParams {
@@ -540,7 +560,7 @@ fn row_sums(
 ) -> Vec<Sums> {
     let spp = p.spp as usize;
     let mut sums = vec![Sums::default(); (u1 - u0) as usize];
-    if !p.packet {
+    if p.tracer == Tracer::Scalar {
         for (i, s) in sums.iter_mut().enumerate() {
             let u = u0 + i as u32;
             for k in 0..p.spp {
@@ -562,7 +582,11 @@ fn row_sums(
             let (o, d) = camera_ray(cam, u, v, &rng);
             (o, d, rng)
         };
-        trace_paths8(scene, start, p.max_bounces, p.rr_depth, &mut buf[..n]);
+        let out = &mut buf[..n];
+        match p.tracer {
+            Tracer::Packet => trace_paths8(scene, start, p.max_bounces, p.rr_depth, out),
+            _ => trace_paths_wave8(scene, start, p.max_bounces, p.rr_depth, out),
+        }
         for (j, &l) in buf[..n].iter().enumerate() {
             sums[(b0 + j) / spp].add(l);
         }
@@ -677,7 +701,7 @@ mod tests {
             seed: 1,
             max_bounces: 64,
             rr_depth: 5,
-            packet: true,
+            tracer: Tracer::Wavefront,
         }
     }
 

@@ -41,6 +41,10 @@ pub struct Soa8 {
     qua: [Vec<f32>; 3],
     qvb: [Vec<f32>; 3],
     qid: Vec<u32>,
+    /// Per quad, `[k, i, j]` when the normal is `+-e_k` and `ua`, `vb` are
+    /// `e_i`, `e_j` multiples (the Cornell box walls): the AVX2 test then
+    /// skips the products with zero components (see `avx2::quad_axis`).
+    qaxis: Vec<Option<[usize; 3]>>,
     avx2: bool,
 }
 
@@ -96,6 +100,14 @@ impl Soa8 {
                     s.qvb[k].push(vb[k]);
                 }
                 s.qid.push(i as u32);
+                let single = |v: glam::Vec3A| {
+                    let nz: Vec<usize> = (0..3).filter(|&a| v[a] != 0.0).collect();
+                    (nz.len() == 1).then(|| nz[0])
+                };
+                s.qaxis.push(match (q.axis(), single(ua), single(vb)) {
+                    (k, Some(i), Some(j)) if k < 3 => Some([k, i, j]),
+                    _ => None,
+                });
             }
         }
         s
@@ -330,6 +342,38 @@ mod avx2 {
         (t, ok)
     }
 
+    /// [`quad`] for a quad with normal `+-e_k`, `ua` along `e_i` and `vb`
+    /// along `e_j`: `t = (c_k - o_k) / d_k`, `a = h_i ua_i`, `b = h_j vb_j`.
+    /// The same decisions and `t` bits as [`quad`]: its dot products with
+    /// `n`, `ua`, `vb` add only signed zeros to these terms (a zero's sign
+    /// passes `0 <= a`), and negating both sides of `t`'s quotient (normal
+    /// `-e_k`) is exact; a ray parallel to the plane gets `t` infinite or
+    /// NaN in both, which no test passes.
+    #[inline]
+    #[target_feature(enable = "avx2")]
+    fn quad_axis(
+        ax: [usize; 3],
+        c: V3,
+        ua: V3,
+        vb: V3,
+        o: V3,
+        d: V3,
+        tb: __m256,
+    ) -> (__m256, __m256) {
+        let [k, i, j] = ax;
+        let zero = _mm256_setzero_ps();
+        let t = _mm256_div_ps(sub(c[k], o[k]), d[k]);
+        let hi = sub(add(o[i], mul(t, d[i])), c[i]);
+        let hj = sub(add(o[j], mul(t, d[j])), c[j]);
+        let ok = all4(
+            _mm256_cmp_ps::<_CMP_GT_OQ>(t, zero),
+            _mm256_cmp_ps::<_CMP_LT_OQ>(t, tb),
+            unit(mul(hi, ua[i])),
+            unit(mul(hj, vb[j])),
+        );
+        (t, ok)
+    }
+
     /// The portable loop's operations on 8 lanes at once.
     ///
     /// # Safety
@@ -365,8 +409,11 @@ mod avx2 {
             let (t, ok) = match which {
                 Err(k) => sphere(splat3(&s.sc, k), _mm256_set1_ps(s.sr2[k]), o, d, tbest),
                 Ok(k) => {
-                    let cnab = [&s.qc, &s.qn, &s.qua, &s.qvb].map(|v| splat3(v, k));
-                    quad(cnab, o, d, tbest)
+                    let [c, n, ua, vb] = [&s.qc, &s.qn, &s.qua, &s.qvb].map(|v| splat3(v, k));
+                    match s.qaxis[k] {
+                        Some(ax) => quad_axis(ax, c, ua, vb, o, d, tbest),
+                        None => quad([c, n, ua, vb], o, d, tbest),
+                    }
                 }
             };
             let ok = _mm256_and_ps(ok, actv);

@@ -114,7 +114,7 @@ mod tests {
     use crate::budget::MemBudget;
     use crate::camera::Camera;
     use crate::pathtrace::bsdf::Material;
-    use crate::pathtrace::integrator::{render, RenderParams};
+    use crate::pathtrace::integrator::{render, RenderParams, Tracer};
     use crate::pathtrace::shapes::{Quad, Shape, Sphere};
 
     /// A light, a floor, a metal and a glass sphere.
@@ -169,11 +169,11 @@ mod tests {
                 seed: 3,
                 max_bounces: 64,
                 rr_depth: 2,
-                packet: true,
+                tracer: Tracer::Packet,
             };
             let b = MemBudget::fixed(1 << 30);
             let a = render(&scene, &cam, &p, &b).unwrap();
-            p.packet = false;
+            p.tracer = Tracer::Scalar;
             let s = render(&scene, &cam, &p, &b).unwrap();
             assert_eq!(a.rgb, s.rgb);
             assert_eq!(a.variance, s.variance);

@@ -7,7 +7,7 @@
 //! | `seed` | first key of `rand(seed, pixel, sample, dim)` | 0 |
 //! | `max_bounces` | most scattering events on a path (camera ray hitting a light = 0) | 64 |
 //! | `rr_depth` | bounces before Russian roulette starts | 5 |
-//! | `packet` | trace paths 8 at a time, lanes refilled as paths end (SIMD across rays); `false`: the scalar path (the same image) | true |
+//! | `tracer` | `wavefront` (paths 8 at a time, whole vertices in 8 SIMD lanes), `packet` (8 rays per intersection test, shading per lane) or `scalar` (one path at a time, the referee); the same image from each | wavefront |
 //! | `environment` | uniform radiance of every ray that leaves the scene | [0, 0, 0] |
 //! | `materials` | name -> material (below) | required |
 //! | `shapes` | list of shapes (below) | required |
@@ -31,6 +31,7 @@ use super::rays::{ViewSpec, VIEW_KEYS};
 use super::SceneDoc;
 use crate::camera::Camera;
 use crate::error::{Error, Result};
+use crate::pathtrace::integrator::Tracer;
 use crate::pathtrace::{Material, Quad, RenderParams, Scene, Shape, Sphere};
 
 fn default_spp() -> u32 {
@@ -41,9 +42,6 @@ fn sixty_four() -> u32 {
 }
 fn five() -> u32 {
     5
-}
-fn yes() -> bool {
-    true
 }
 
 /// A material as written in a scene file.
@@ -90,8 +88,8 @@ pub struct PathtraceRest {
     pub max_bounces: u32,
     #[serde(default = "five")]
     pub rr_depth: u32,
-    #[serde(default = "yes")]
-    pub packet: bool,
+    #[serde(default)]
+    pub tracer: Tracer,
     #[serde(default)]
     pub environment: [f32; 3],
     pub materials: BTreeMap<String, MaterialSpec>,
@@ -197,7 +195,7 @@ pub fn parse(doc: &SceneDoc) -> Result<PathtraceScene> {
         seed: rest.seed,
         max_bounces: rest.max_bounces,
         rr_depth: rest.rr_depth,
-        packet: rest.packet,
+        tracer: rest.tracer,
     };
     params
         .validate()

@@ -42,8 +42,10 @@ ops! {
         "render + mean rgb/luminance/(r/g) of named world-space regions of named shapes (params.regions)";
     "pathtrace.rmse_vs_reference" F32 rmse_vs_reference ["reference"]
         "render + rmse (clamped [0,1]) and rmse_raw against params.reference (an (H, W, 3) float32 .npy)";
-    "pathtrace.speed_error" F32 speed_error ["spp", "ref_spp", "ref_seed", "reference"]
-        "seconds and rmse (clamped [0,1] and raw) vs a ref_spp render (or params.reference .npy) per params.spp; plot_image";
+    "pathtrace.speed_error" F32 speed_error ["spp", "ref_spp", "ref_seed", "reference", "backends"]
+        "seconds and rmse (clamped [0,1] and raw) vs a ref_spp render (or params.reference .npy) per params.spp, on each of params.backends (names prefixed cpu_/gpu_); plot_image";
+    "pathtrace.tracers" CpuF32 tracers ["repeats"]
+        "scalar, packet and wavefront CPU paths interleaved: <tracer>_cpu_s, <tracer>_paths_per_cpu_s, wavefront_over_scalar/packet, same_image";
     "pathtrace.parity" F32 parity ["cpu_seed", "alpha"]
         "run's backend vs CPU (seed params.cpu_seed) per pixel z-test: p_min, sidak_alpha (params.alpha), z2_mean, max_abs_z, zero_var_mismatch";
     "pathtrace.reflectance_applied" CpuF32 reflectance_op ["thetas", "samples", "alpha", "reflectance"]
@@ -57,7 +59,17 @@ fn load(ctx: &OpCtx) -> Result<PathtraceScene> {
 /// A render of `s` with `p` on the case's backend, and its seconds (GPU:
 /// submit to readback).
 fn timed_render(s: &PathtraceScene, p: &RenderParams, ctx: &OpCtx) -> Result<(Image, f64)> {
-    if ctx.backend == BackendKind::Gpu {
+    timed_render_on(s, p, ctx, ctx.backend)
+}
+
+/// [`timed_render`] on `backend`.
+fn timed_render_on(
+    s: &PathtraceScene,
+    p: &RenderParams,
+    ctx: &OpCtx,
+    backend: BackendKind,
+) -> Result<(Image, f64)> {
+    if backend == BackendKind::Gpu {
         let gpu = crate::gpu::GpuContext::get()?;
         return crate::pathtrace::gpu::render_gpu(gpu, &s.scene, &s.camera, p, &ctx.budget);
     }
@@ -67,17 +79,20 @@ fn timed_render(s: &PathtraceScene, p: &RenderParams, ctx: &OpCtx) -> Result<(Im
     Ok((img, t.elapsed().as_secs_f64()))
 }
 
-/// Renders `s` with `spp` samples and `seed` (other parameters from the scene).
-fn render_with(s: &PathtraceScene, spp: u32, seed: u32, ctx: &OpCtx) -> Result<(Image, f64)> {
-    timed_render(
-        s,
-        &RenderParams {
-            spp,
-            seed,
-            ..s.params
-        },
-        ctx,
-    )
+/// Renders `s` with `spp` samples and `seed` (other parameters from the
+/// scene) on `backend`.
+fn render_with(
+    s: &PathtraceScene,
+    (spp, seed): (u32, u32),
+    ctx: &OpCtx,
+    backend: BackendKind,
+) -> Result<(Image, f64)> {
+    let p = RenderParams {
+        spp,
+        seed,
+        ..s.params
+    };
+    timed_render_on(s, &p, ctx, backend)
 }
 
 /// The scene, its render and the render's outputs.
@@ -175,7 +190,7 @@ fn convergence(ctx: &OpCtx) -> Result<Outputs> {
         return Err(Error::invalid(format!("{} params", ctx.case_id), why));
     }
     let (ref_spp, clamp) = (ctx.param_or("ref_spp", 4096)?, ctx.param_or("clamp", true)?);
-    let render = |spp, seed| render_with(&s, spp, seed, ctx);
+    let render = |spp, seed| render_with(&s, (spp, seed), ctx, ctx.backend);
     measure::convergence(&spps, &seeds, (ref_spp, clamp), render)
 }
 
@@ -240,15 +255,30 @@ fn speed_error(ctx: &OpCtx) -> Result<Outputs> {
     let (reference, noise) = match ctx.param::<String>("reference")? {
         Some(file) => (read_reference(ctx, &s, &file)?, 0.0),
         None => {
-            let (r, secs) = render_with(&s, ref_spp, ref_seed, ctx)?;
+            let (r, secs) = render_with(&s, (ref_spp, ref_seed), ctx, ctx.backend)?;
             out.metric("ref_time_s", secs);
             let noise = mean_variance(&r.variance);
             (r, noise)
         }
     };
-    let render = |spp, seed| render_with(&s, spp, seed, ctx);
-    measure::speed_error(&spps, s.params.seed, (&reference, noise), render, &mut out)?;
+    let backends: Vec<BackendKind> = ctx.param_or("backends", vec![ctx.backend])?;
+    let s = &s;
+    let renders: Vec<_> = backends
+        .iter()
+        .map(|&b| move |spp, seed| render_with(s, (spp, seed), ctx, b))
+        .collect();
+    let named: Vec<(&str, measure::Render)> = backends
+        .iter()
+        .zip(&renders)
+        .map(|(b, r)| (b.name(), r as measure::Render))
+        .collect();
+    measure::speed_error(&spps, s.params.seed, (&reference, noise), &named, &mut out)?;
     Ok(out)
+}
+
+/// The three CPU tracers on the case's scene (`measure::pathtrace::tracers`).
+fn tracers(ctx: &OpCtx) -> Result<Outputs> {
+    measure::tracers(&load(ctx)?, ctx.param_or("repeats", 3)?, &ctx.budget)
 }
 
 /// The run's backend against the CPU with another seed: per pixel and

@@ -1,0 +1,460 @@
+//! The whole-vertex packet path: eight camera paths at a time, every stage
+//! of a vertex done for the eight lanes at once (a wavefront inside one
+//! packet): the nearest-hit test ([`super::soa8`]), the surface point and
+//! shading frame, emission with its MIS weight, the light sample (uniform
+//! light choice and point, `eval`, `pdf`, power heuristic), the eight
+//! shadow rays ([`super::soa8`]), BSDF sampling per material under masks
+//! ([`super::bsdf8`]), the counter-based random numbers
+//! `rand(seed, pixel, sample, dim)` as eight-lane hashes, and Russian
+//! roulette. A lane whose path ends takes the caller's next path at once
+//! (refill), as in [`super::trace8`].
+//!
+//! Referee: the scalar [`super::integrator::trace`]. Each lane runs its
+//! operations in the same order ([`super::lanes`]), so the image equals
+//! the scalar image bit for bit (unit tests below; case
+//! `pt_wavefront_equals_scalar`). AVX2 + FMA chosen at run time
+//! (`is_x86_feature_detected!`), the same code without them elsewhere.
+
+use glam::Vec3A;
+
+use super::bsdf8::{self, Frame8, Mat8, GLASS, LIGHT};
+use super::integrator::{dims, PathRng, Scene};
+use super::lanes::{F8, LANES, M8, U8, V8};
+use super::shapes::{Shape, OFFSET_REL};
+use super::soa8::Rays8;
+use crate::pathtrace::bsdf::Material;
+
+/// One shape's shading data, gathered by shape index.
+#[derive(Clone, Copy, Debug, Default)]
+struct Row {
+    sphere: bool,
+    centre: [f32; 3],
+    radius: f32,
+    normal: [f32; 3],
+    area: f32,
+    kind: u32,
+    rgb: [f32; 3],
+    a: f32,
+}
+
+/// One light quad: corner, edges, normal, area and radiance.
+#[derive(Clone, Copy, Debug, Default)]
+struct LightRow {
+    corner: [f32; 3],
+    u: [f32; 3],
+    v: [f32; 3],
+    normal: [f32; 3],
+    area: f32,
+    radiance: [f32; 3],
+}
+
+/// The scene as rows for lane gathers.
+struct Tables {
+    rows: Vec<Row>,
+    lights: Vec<LightRow>,
+    env: [f32; 3],
+}
+
+impl Tables {
+    fn new(scene: &Scene) -> Tables {
+        let rows = (0..scene.shapes().len())
+            .map(|i| {
+                let (kind, rgb, a) = match scene.material(i) {
+                    Material::Lambertian { albedo } => (bsdf8::LAMBERT, albedo, 0.0),
+                    Material::RoughConductor { alpha, reflectance } => {
+                        (bsdf8::METAL, reflectance, alpha)
+                    }
+                    Material::Dielectric { ior } => (GLASS, Vec3A::ZERO, ior),
+                    Material::Emitter { radiance } => (LIGHT, radiance, 0.0),
+                };
+                let mut r = Row {
+                    kind,
+                    rgb: rgb.to_array(),
+                    a,
+                    ..Row::default()
+                };
+                match scene.shapes()[i] {
+                    Shape::Sphere(s) => {
+                        (r.sphere, r.centre, r.radius) = (true, s.centre.to_array(), s.radius)
+                    }
+                    Shape::Quad(q) => (r.normal, r.area) = (q.normal().to_array(), q.area()),
+                }
+                r
+            })
+            .collect();
+        let lights = scene
+            .lights()
+            .iter()
+            .filter_map(
+                |&i| match (scene.shapes()[i as usize], scene.material(i as usize)) {
+                    (Shape::Quad(q), Material::Emitter { radiance }) => Some(LightRow {
+                        corner: q.corner.to_array(),
+                        u: q.u.to_array(),
+                        v: q.v.to_array(),
+                        normal: q.normal().to_array(),
+                        area: q.area(),
+                        radiance: radiance.to_array(),
+                    }),
+                    _ => None,
+                },
+            )
+            .collect();
+        Tables {
+            rows,
+            lights,
+            env: scene.environment().to_array(),
+        }
+    }
+}
+
+/// The eight lanes' path states (`integrator::PathState` per lane).
+#[derive(Clone, Copy, Debug, Default)]
+struct Paths {
+    o: V8,
+    d: V8,
+    l: V8,
+    beta: V8,
+    eta2: F8,
+    prev_pdf: F8,
+    prev_delta: M8,
+    bounces: U8,
+    key: U8,
+}
+
+impl Paths {
+    /// Lane `k` starts a camera path.
+    #[inline(always)]
+    fn start(&mut self, k: usize, o: Vec3A, d: Vec3A, rng: PathRng) {
+        self.o.set_lane(k, o.to_array());
+        self.d.set_lane(k, d.to_array());
+        self.l.set_lane(k, [0.0; 3]);
+        self.beta.set_lane(k, [1.0; 3]);
+        self.eta2.0[k] = 1.0;
+        self.prev_pdf.0[k] = 0.0;
+        self.prev_delta.0[k] = u32::MAX;
+        self.bounces.0[k] = 0;
+        self.key.0[k] = rng.key();
+    }
+
+    fn rays(&self) -> Rays8 {
+        Rays8 {
+            o: [self.o.x.0, self.o.y.0, self.o.z.0],
+            d: [self.d.x.0, self.d.y.0, self.d.z.0],
+        }
+    }
+}
+
+/// `integrator::power` per lane.
+#[inline(always)]
+fn power(a: F8, b: F8) -> F8 {
+    let (a2, b2) = (a * a, b * b);
+    (a2 + b2)
+        .gt(F8::splat(0.0))
+        .select(a2 / (a2 + b2), F8::splat(0.0))
+}
+
+/// `shapes::spawn_origin` per lane.
+#[inline(always)]
+fn spawn(p: V8, n: V8, w: V8) -> V8 {
+    let eps = F8::splat(OFFSET_REL) * (F8::splat(1.0) + p.abs().max_element());
+    w.dot(n)
+        .ge(F8::splat(0.0))
+        .select_v(p + n.scale(eps), p - n.scale(eps))
+}
+
+/// `integrator::light_sample` per lane for the lanes of `m`: `(ok, shadow
+/// origin, direction, tmax, value)`, `ok` false where the sample is worth 0.
+#[inline(always)]
+fn light_sample(
+    tab: &Tables,
+    m: M8,
+    (p, n, fr, wo): (V8, V8, &Frame8, V8),
+    mat: &Mat8,
+    (key, base): (U8, U8),
+) -> (M8, V8, V8, F8, V8) {
+    let nl = tab.lights.len();
+    let nlf = F8::splat(nl as f32);
+    let u = key.rand(base + U8::splat(dims::LIGHT_CHOICE));
+    let pick = (u * nlf).to_i32().min(U8::splat(nl as u32 - 1));
+    let (mut c, mut eu, mut ev, mut ln) =
+        (V8::default(), V8::default(), V8::default(), V8::default());
+    let (mut area, mut rad) = (F8::default(), V8::default());
+    for k in 0..LANES {
+        // One light (the Cornell box): every lane reads row 0.
+        let r = &tab.lights[if nl == 1 { 0 } else { pick.0[k] as usize }];
+        c.set_lane(k, r.corner);
+        eu.set_lane(k, r.u);
+        ev.set_lane(k, r.v);
+        ln.set_lane(k, r.normal);
+        area.0[k] = r.area;
+        rad.set_lane(k, r.radiance);
+    }
+    let ua = key.rand(base + U8::splat(dims::LIGHT_U));
+    let vb = key.rand(base + U8::splat(dims::LIGHT_V));
+    let x = c + eu.scale(ua) + ev.scale(vb);
+    let to = x - p;
+    let dist2 = to.dot(to);
+    let zero = F8::splat(0.0);
+    let wi = to.div(dist2.sqrt());
+    let cos_l = -wi.dot(ln);
+    let wl = fr.to_local(wi);
+    let f = bsdf8::eval(mat, wo, wl);
+    let ok = m & !dist2.eq(zero) & !cos_l.le(zero) & !f.is_zero();
+    let o = spawn(p, n, wi);
+    let pl = dist2 / (cos_l * area * nlf);
+    let w = power(pl, bsdf8::pdf(mat, wo, wl));
+    let tmax = (x - o).length() * F8::splat(1.0 - 1e-4);
+    let value = f.scale(wl.z.abs() * w / pl) * rad;
+    (ok, o, wi, tmax, value)
+}
+
+/// Radiance of the camera paths `0..out.len()`, as
+/// [`super::trace8::trace_paths8`] (same arguments, same results).
+pub fn trace_paths_wave8(
+    scene: &Scene,
+    start: impl Fn(usize) -> (Vec3A, Vec3A, PathRng),
+    max_bounces: u32,
+    rr_depth: u32,
+    out: &mut [Vec3A],
+) {
+    let tab = Tables::new(scene);
+    #[cfg(target_arch = "x86_64")]
+    if std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma") {
+        // SAFETY: AVX2 and FMA were detected on this CPU just above.
+        unsafe { run_avx2(scene, &tab, &start, (max_bounces, rr_depth), out) };
+        return;
+    }
+    run(scene, &tab, &start, (max_bounces, rr_depth), out)
+}
+
+/// [`run`] compiled for AVX2 + FMA.
+///
+/// # Safety
+/// The CPU must have AVX2 and FMA.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma")]
+unsafe fn run_avx2<F: Fn(usize) -> (Vec3A, Vec3A, PathRng)>(
+    scene: &Scene,
+    tab: &Tables,
+    start: &F,
+    limits: (u32, u32),
+    out: &mut [Vec3A],
+) {
+    run(scene, tab, start, limits, out)
+}
+
+/// The wavefront loop: refill, intersect, shade, shadow-test, scatter.
+#[inline(always)]
+fn run<F: Fn(usize) -> (Vec3A, Vec3A, PathRng)>(
+    scene: &Scene,
+    tab: &Tables,
+    start: &F,
+    (max_bounces, rr_depth): (u32, u32),
+    out: &mut [Vec3A],
+) {
+    let soa = scene.soa();
+    let mut s = Paths::default();
+    let mut job = [0usize; LANES];
+    let (mut next, mut active) = (0usize, 0u8);
+    let (zero, one) = (F8::splat(0.0), F8::splat(1.0));
+    let nlf = F8::splat(tab.lights.len() as f32);
+    loop {
+        for (k, j) in job.iter_mut().enumerate() {
+            if active & (1 << k) == 0 && next < out.len() {
+                let (o, d, rng) = start(next);
+                s.start(k, o, d, rng);
+                *j = next;
+                next += 1;
+                active |= 1 << k;
+            }
+        }
+        if active == 0 {
+            return;
+        }
+        let (t, id) = soa.intersect8(&s.rays(), active);
+        let act = M8::from_bits(active);
+        let hit = act & !U8(id).eq(U8::splat(u32::MAX));
+        let miss = act & !hit;
+        s.l = miss.select_v(s.l + s.beta * V8::splat(tab.env), s.l);
+        // Gather the shapes and materials that the lanes hit.
+        let (mut sph, mut c, mut rad, mut qn, mut area) = (
+            M8::default(),
+            V8::default(),
+            F8::default(),
+            V8::default(),
+            F8::default(),
+        );
+        let mut mat = Mat8::default();
+        for k in 0..LANES {
+            let r = &tab.rows[if id[k] == u32::MAX { 0 } else { id[k] as usize }];
+            sph.0[k] = if r.sphere { u32::MAX } else { 0 };
+            c.set_lane(k, r.centre);
+            rad.0[k] = r.radius;
+            qn.set_lane(k, r.normal);
+            area.0[k] = r.area;
+            mat.kind.0[k] = r.kind;
+            mat.rgb.set_lane(k, r.rgb);
+            mat.a.0[k] = r.a;
+        }
+        // Surface point and normal (`Shape::surface`), frame, wo.
+        let t = F8(t);
+        let p = s.o + s.d.scale(t);
+        let rs = p - c;
+        let ns = rs.div(rs.length());
+        let n = sph.select_v(ns, qn);
+        let p = sph.select_v(c + ns.scale(rad), p);
+        let fr = Frame8::new(n);
+        let wo = fr.to_local(-s.d);
+        // Emitters (`PathState::hit`): one-sided, MIS after a non-delta bounce.
+        let emit = hit & mat.is(LIGHT);
+        let w_l = power(s.prev_pdf, t * t / (wo.z * area * nlf));
+        let w = s.prev_delta.select(one, w_l);
+        let front = emit & wo.z.gt(zero);
+        s.l = front.select_v(s.l + (s.beta * mat.rgb).scale(w), s.l);
+        let deep = hit & !emit & s.bounces.ge(U8::splat(max_bounces));
+        let vert = hit & !emit & !deep;
+        let base = U8::splat(dims::FIRST_VERTEX) + U8::splat(dims::STRIDE).mul(s.bounces);
+        // Light sampling and the eight shadow rays.
+        let nee = vert & !mat.is(GLASS);
+        if !tab.lights.is_empty() && nee.any() {
+            let (ok, so, swi, tmax, value) =
+                light_sample(tab, nee, (p, n, &fr, wo), &mat, (s.key, base));
+            let shadow = Rays8 {
+                o: [so.x.0, so.y.0, so.z.0],
+                d: [swi.x.0, swi.y.0, swi.z.0],
+            };
+            let occ = if ok.any() {
+                M8::from_bits(soa.occluded8(&shadow, &tmax.0, ok.bits()))
+            } else {
+                M8::default()
+            };
+            let add = (ok & !occ).select_v(value, V8::default());
+            s.l = nee.select_v(s.l + s.beta * add, s.l);
+        }
+        // BSDF sampling (`PathState::scatter`) and Russian roulette.
+        let r = |d: u32| s.key.rand(base + U8::splat(d));
+        let bs = bsdf8::sample(
+            &mat,
+            vert,
+            wo,
+            r(dims::LOBE),
+            r(dims::BSDF_U),
+            r(dims::BSDF_V),
+        );
+        let go = vert & bs.ok;
+        s.beta = go.select_v(s.beta * bs.weight, s.beta);
+        s.eta2 = go.select(s.eta2 * bs.eta2, s.eta2);
+        s.prev_pdf = go.select(bs.pdf, s.prev_pdf);
+        s.prev_delta = go.select_m(bs.delta, s.prev_delta);
+        let d = fr.to_world(bs.wi).normalize();
+        s.d = go.select_v(d, s.d);
+        s.o = go.select_v(spawn(p, n, d), s.o);
+        s.bounces = go.select_u(s.bounces + U8::splat(1), s.bounces);
+        let rr = go & s.bounces.ge(U8::splat(rr_depth));
+        let q = (s.beta.scale(s.eta2)).max_element().min(F8::splat(0.95));
+        let live = rr & r(dims::ROULETTE).lt(q);
+        s.beta = live.select_v(s.beta.div(q), s.beta);
+        let ended = (act & !go) | (rr & !live);
+        let bits = ended.bits();
+        for (k, &j) in job.iter().enumerate() {
+            if bits & (1 << k) != 0 {
+                out[j] = Vec3A::from_array(s.l.lane(k));
+            }
+        }
+        active &= !bits;
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::budget::MemBudget;
+    use crate::camera::Camera;
+    use crate::pathtrace::integrator::{render, RenderParams, Tracer};
+    use crate::pathtrace::shapes::{Quad, Sphere};
+
+    /// A light, a floor, a metal, a glass and a diffuse sphere: the
+    /// wavefront render equals the scalar render bit for bit, with AVX2 (when
+    /// the CPU has it) and with the portable lanes.
+    #[test]
+    fn wavefront_render_equals_the_scalar_render_bit_for_bit() {
+        let v = Vec3A::new;
+        let quad = |c, u, w| Shape::Quad(Quad::new(c, u, w).unwrap());
+        let ball = |c, r| {
+            Shape::Sphere(Sphere {
+                centre: c,
+                radius: r,
+            })
+        };
+        let objs = [
+            (
+                quad(v(-0.3, 1.5, -0.3), v(0.6, 0.0, 0.0), v(0.0, 0.0, 0.6)),
+                1,
+            ),
+            (
+                quad(v(0.4, 1.2, 0.3), v(0.3, 0.0, 0.0), v(0.0, 0.0, 0.3)),
+                4,
+            ),
+            (
+                quad(v(-2.0, -1.0, -2.0), v(0.0, 0.0, 4.0), v(4.0, 0.0, 0.0)),
+                0,
+            ),
+            (ball(v(-0.5, 0.0, 0.0), 0.5), 2),
+            (ball(v(0.6, -0.3, 0.2), 0.4), 3),
+            (ball(v(0.1, -0.7, 0.9), 0.3), 0),
+        ];
+        let mats = vec![
+            Material::Lambertian {
+                albedo: v(0.7, 0.5, 0.3),
+            },
+            Material::Emitter {
+                radiance: Vec3A::splat(10.0),
+            },
+            Material::RoughConductor {
+                alpha: 0.1,
+                reflectance: v(0.8, 0.8, 0.9),
+            },
+            Material::Dielectric { ior: 1.5 },
+            Material::Emitter {
+                radiance: v(2.0, 4.0, 6.0),
+            },
+        ];
+        let scene = Scene::new(&objs, mats, [0.1, 0.2, 0.3]).unwrap();
+        for (w, h, spp) in [(24, 24, 13), (17, 2, 300)] {
+            let cam =
+                Camera::pinhole_look_at([0.0, 0.0, 4.0], [0.0; 3], [0.0, 1.0, 0.0], 40.0, w, h)
+                    .unwrap()
+                    .to_real(w, h);
+            let mut p = RenderParams {
+                width: w,
+                height: h,
+                spp,
+                seed: 3,
+                max_bounces: 64,
+                rr_depth: 2,
+                tracer: Tracer::Wavefront,
+            };
+            let b = MemBudget::fixed(1 << 30);
+            let a = render(&scene, &cam, &p, &b).unwrap();
+            p.tracer = Tracer::Scalar;
+            let s = render(&scene, &cam, &p, &b).unwrap();
+            assert_eq!(a.rgb, s.rgb);
+            assert_eq!(a.variance, s.variance);
+            assert!(a.rgb.iter().any(|x| x[0] > 0.0));
+        }
+        // The portable lanes (no AVX2) against the dispatching entry point.
+        let cam = Camera::pinhole_look_at([0.0, 0.0, 4.0], [0.0; 3], [0.0, 1.0, 0.0], 40.0, 8, 8)
+            .unwrap()
+            .to_real(8, 8);
+        let start = |j: usize| {
+            let rng = PathRng::new(5, j as u32 / 7, j as u32 % 7);
+            let (o, d) = cam.ray(0.5 + (j / 7 % 8) as f32, 0.5 + (j / 56) as f32);
+            (Vec3A::from_array(o), Vec3A::from_array(d), rng)
+        };
+        let (mut a, mut b) = (vec![Vec3A::ZERO; 448], vec![Vec3A::ZERO; 448]);
+        trace_paths_wave8(&scene, start, 64, 2, &mut a);
+        run(&scene, &Tables::new(&scene), &start, (64, 2), &mut b);
+        assert_eq!(a, b);
+        assert!(a.iter().any(|x| x.x > 0.0));
+    }
+}
