@@ -80,7 +80,10 @@ fn own_chain(name: &str, depth: usize) -> Result<String> {
         Some(b) => format!("{}\n", own_chain(b, depth + 1)?),
         None => String::new(),
     };
-    Ok(format!("{base}// ---- kernels/{}.wgsl ----\n{}", k.name, k.text))
+    Ok(format!(
+        "{base}// ---- kernels/{}.wgsl ----\n{}",
+        k.name, k.text
+    ))
 }
 
 /// Kernel, entry point, and its override constants (`name=value;` each).

@@ -146,7 +146,14 @@ pub fn hash_sensitivity(h: &HashMlp<f32>) -> f64 {
     for l in &h.layers[..h.layers.len() - 1] {
         let top = a[a.len() - 1];
         let z = (0..l.out)
-            .map(|o| amax(&l.b[o..=o]) + l.w[o * l.inp..(o + 1) * l.inp].iter().map(|w| w.abs() as f64).sum::<f64>() * top)
+            .map(|o| {
+                amax(&l.b[o..=o])
+                    + l.w[o * l.inp..(o + 1) * l.inp]
+                        .iter()
+                        .map(|w| w.abs() as f64)
+                        .sum::<f64>()
+                        * top
+            })
             .fold(0.0f64, f64::max);
         a.push(z);
     }
@@ -154,7 +161,11 @@ pub fn hash_sensitivity(h: &HashMlp<f32>) -> f64 {
     for (q, l) in h.layers.iter().enumerate().rev() {
         s = s.max(d * a[q].max(1.0));
         d *= (0..l.inp)
-            .map(|i| (0..l.out).map(|o| l.w[o * l.inp + i].abs() as f64).sum::<f64>())
+            .map(|i| {
+                (0..l.out)
+                    .map(|o| l.w[o * l.inp + i].abs() as f64)
+                    .sum::<f64>()
+            })
             .fold(0.0f64, f64::max);
     }
     s.max(d)
