@@ -26,6 +26,8 @@ const FIELD_GAUSSIAN: u32 = 2u;
 const FIELD_SHELL: u32 = 3u;
 const FIELD_LINEAR: u32 = 4u;
 const FIELD_GRID: u32 = 5u;
+// The network runs in its own per-sample pass (kernels/hash_mlp.wgsl).
+const FIELD_HASH: u32 = 6u;
 
 // Ray flags: src/volume/sample.rs FLAG_*; FLAG_UNSTABLE is GPU-only (see below).
 const FLAG_HIT: u32 = 1u;
@@ -288,6 +290,16 @@ fn sigma_at(x: vec3<f32>, unstable: ptr<function, bool>) -> f32 {
     }
 }
 
+// (sigma, rgb) at x. A hash field's values are 0 here: its network runs one
+// thread per sample after f_samp_fill (kernels/hash_mlp.wgsl `f_hash_fill`).
+fn medium_at(x: vec3<f32>, unstable: ptr<function, bool>) -> vec4<f32> {
+    if (V.field_kind == FIELD_HASH) {
+        return vec4<f32>(0.0);
+    }
+    let sigma = sigma_at(x, unstable);
+    return vec4<f32>(sigma, color_at(x));
+}
+
 // ---- occupancy and lattice ----------------------------------------------------
 
 fn occ_bit(c: vec3<u32>) -> bool {
@@ -460,8 +472,8 @@ fn f_fused(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroup
                 flags |= FLAG_STOPPED;
                 break;
             }
-            let sigma = sigma_at(x, &unstable);
-            acc_step(&acc, tk, sigma, color_at(x), s.t, s.h);
+            let q = medium_at(x, &unstable);
+            acc_step(&acc, tk, q.x, q.yzw, s.t, s.h);
             k += 1u;
         }
         if (!ended && sample_k(ray.t0, ray.t1, V.max_steps, ray.pixel).ok) {
@@ -543,8 +555,9 @@ fn f_samp_fill(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workg
         if (V.occ_res > 0u && !occupied(x, &unstable)) {
             continue;
         }
-        samp0[m] = vec4<f32>(s.t, s.h, sigma_at(x, &unstable), bitcast<f32>(V.ray_base + j));
-        samp1[m] = vec4<f32>(color_at(x), bitcast<f32>(k));
+        let q = medium_at(x, &unstable);
+        samp0[m] = vec4<f32>(s.t, s.h, q.x, bitcast<f32>(V.ray_base + j));
+        samp1[m] = vec4<f32>(q.yzw, bitcast<f32>(k));
         m += 1u;
     }
     if (unstable) {

@@ -15,8 +15,18 @@
 // and so its rounding, varies from run to run; it is measured against the
 // fixed-point path (src/gpu/volume_diff.rs). CPU twins of the encoding:
 // src/gpu/volume_diff.rs `fx_split` and `fx_value`.
-// Prepended: common.wgsl, then volume.wgsl (fields, lattice, bindings 0-11).
-// Parity cases: TESTS/volume/manifest_gpu_diff.yaml `gpu_vol_grad_*`.
+//   f_diff_hash  one thread per sample of a batch of a hash-grid + MLP field,
+//                between two f_diff_ray passes (D.hash_stage 0: the walk
+//                stores each sample's dL/d(sigma, rgb) in `sgrad`; 1: it reads
+//                the sample's dL/dx back for the pose): back-propagates
+//                through the network and the encoding, adds dL/d(parameters)
+//                with the same fixed-point reduction (one value a parameter,
+//                table entries and weights alike) and writes dL/dx.
+//                CPU twin: src/volume/field/hash_grad.rs `HashMlp::backward`.
+// Prepended: common.wgsl, volume.wgsl (fields, lattice, bindings 0-11),
+// hash_mlp.wgsl (the network, bindings 17-18).
+// Parity cases: TESTS/volume/manifest_gpu_diff.yaml `gpu_vol_grad_*`;
+// f_diff_hash: TESTS/volume/manifest_gpu_hash.yaml `gpu_vol_hash_grad_*`.
 // Host side: src/gpu/volume_diff.rs (struct `DiffParams`, keep in sync).
 
 struct DiffParams {
@@ -42,9 +52,10 @@ struct DiffParams {
     float_atomic: u32,
     // Workgroup index of this batch's first workgroup in dcam_part.
     part_base: u32,
-    _pad0: u32,
-    _pad1: u32,
-    _pad2: u32,
+    // Hash field: value offset of its parameters, their scale, the stage.
+    off_hash: u32,
+    fx_hash: f32,
+    hash_stage: u32,
 }
 
 @group(0) @binding(12) var<uniform> D: DiffParams;
@@ -54,6 +65,9 @@ struct DiffParams {
 @group(0) @binding(14) var<storage, read_write> acc: array<atomic<u32>>;
 // Per workgroup: its rays' summed dL/d(rho, w) (6 of 8 slots).
 @group(0) @binding(15) var<storage, read_write> dcam_part: array<f32>;
+// Hash field, per sample of the batch: (dL/dsigma, dL/dc) after stage 0,
+// (dL/dx, 0) after f_diff_hash.
+@group(0) @binding(19) var<storage, read_write> sgrad: array<vec4<f32>>;
 
 // ---- deterministic accumulation -------------------------------------------
 
@@ -352,7 +366,14 @@ fn ray_grads(j: u32) -> CamGrad {
         let dcolor = g * w;
         let x = ray.o + t * ray.d;
         var gs = vec3<f32>(0.0);
-        if (V.field_kind == FIELD_GRID) {
+        var gc = vec3<f32>(0.0);
+        if (V.field_kind == FIELD_HASH) {
+            if (D.hash_stage == 0u) {
+                sgrad[m] = vec4<f32>(dsigma, dcolor);
+            } else {
+                gc = sgrad[m].xyz;
+            }
+        } else if (V.field_kind == FIELD_GRID) {
             let cs = cell_of(x, V.sg_bmin.xyz, V.sg_scale.xyz, V.sg_n);
             if (cs.ok) {
                 gs = sgrid_backward(cs, dsigma);
@@ -364,13 +385,12 @@ fn ray_grads(j: u32) -> CamGrad {
                 grad_add(D.off_param + u32(p), dsigma, D.fx_sigma);
             }
         }
-        var gc = vec3<f32>(0.0);
         if (V.color_grid == 1u) {
             let cc = cell_of(x, V.cg_bmin.xyz, V.cg_scale.xyz, V.cg_n);
             if (cc.ok) {
                 gc = cgrid_backward(cc, dcolor);
             }
-        } else {
+        } else if (V.field_kind != FIELD_HASH) {
             for (var ch = 0u; ch < 3u; ch++) {
                 grad_add(D.off_ccol + ch, dcolor[ch], D.fx_color);
             }
@@ -453,4 +473,108 @@ fn f_diff_ray(
             dcam_part[8u * (D.part_base + w) + q] = wg_cam[0][q];
         }
     }
+}
+
+// ---- the hash-grid + MLP field ---------------------------------------------
+
+fn hash_add(i: u32, v: f32) {
+    grad_add(D.off_hash + i, v, D.fx_hash);
+}
+
+// Adds dL/d(parameters) of g = dL/d(sigma, rgb) at x; returns dL/dx.
+// CPU twin: src/volume/field/hash_grad.rs `HashMlp::backward` (same loops,
+// same order; rows whose dL/dz is 0 add nothing and are skipped).
+fn hash_backward(x: vec3<f32>, g: vec4<f32>) -> vec3<f32> {
+    var c = hash_corners(x);
+    var h: array<f32, 64>;
+    hash_encode(&c, &h);
+    var z: array<array<f32, 64>, 4>;
+    let o = hash_mlp(&h, &z);
+    var dz: array<f32, 64>;
+    if (H.misc.x == 1u) {
+        dz[0] = select(0.0, g.x, o.x > 0.0);
+    } else {
+        dz[0] = g.x * hash_sigmoid(o.x);
+    }
+    for (var ch = 1u; ch < 4u; ch++) {
+        let s = hash_sigmoid(o[ch]);
+        dz[ch] = g[ch] * s * (1.0 - s);
+    }
+    var dh: array<f32, 64>;
+    for (var qq = H.dims.w; qq > 0u; qq--) {
+        let q = qq - 1u;
+        let ly = H.layer[q];
+        var a: array<f32, 64>;
+        if (q == 0u) {
+            a = h;
+        } else {
+            for (var i = 0u; i < ly.x; i++) {
+                a[i] = max(z[q - 1u][i], 0.0);
+            }
+        }
+        dh = array<f32, 64>();
+        for (var r = 0u; r < ly.y; r++) {
+            let d = dz[r];
+            if (d == 0.0) {
+                continue;
+            }
+            let row = ly.z + r * ly.x;
+            for (var i = 0u; i < ly.x; i++) {
+                hash_add(row + i, d * a[i]);
+                dh[i] += hparams[row + i] * d;
+            }
+            hash_add(ly.w + r, d);
+        }
+        if (q > 0u) {
+            dz = array<f32, 64>();
+            for (var i = 0u; i < ly.x; i++) {
+                if (z[q - 1u][i] > 0.0) {
+                    dz[i] = dh[i];
+                }
+            }
+        }
+    }
+    let nf = H.dims.y;
+    var gx = vec3<f32>(0.0);
+    for (var l = 0u; l < H.dims.x; l++) {
+        let f = c.f[l];
+        let n = H.level_n[l].x;
+        for (var d = 0u; d < 8u; d++) {
+            let row = c.rows[l][d] * nf;
+            var v = 0.0;
+            for (var q = 0u; q < nf; q++) {
+                let dhq = dh[l * nf + q];
+                hash_add(row + q, c.w[l][d] * dhq);
+                v += hparams[row + q] * dhq;
+            }
+            for (var a = 0u; a < 3u; a++) {
+                if (!c.free[a]) {
+                    continue;
+                }
+                var dw = select(-1.0, 1.0, ((d >> a) & 1u) == 1u);
+                for (var b = 0u; b < 3u; b++) {
+                    if (b != a) {
+                        dw *= select(1.0 - f[b], f[b], ((d >> b) & 1u) == 1u);
+                    }
+                }
+                gx[a] += v * dw * n * H.inv_ext[a];
+            }
+        }
+    }
+    return gx;
+}
+
+@compute @workgroup_size(64)
+fn f_diff_hash(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
+    let m = linear_id(gid, nwg, 64u);
+    if (m >= off[V.ray_count]) {
+        return;
+    }
+    let g = sgrad[m];
+    if (all(g == vec4<f32>(0.0))) {
+        return;
+    }
+    let s0 = samp0[m];
+    let ray = camera_ray(C, bitcast<u32>(s0.w));
+    sgrad[m] = vec4<f32>(hash_backward(ray.o + s0.x * ray.d, g), 0.0);
 }

@@ -14,19 +14,20 @@ pub enum FieldKind {
     Shell = 3,
     Linear = 4,
     Grid = 5,
-    /// CPU only so far (no kernel: issue 19), so not in [`FieldKind::ALL`].
+    /// Its network runs in `kernels/hash_mlp.wgsl` (one thread a sample).
     HashMlp = 6,
 }
 
 impl FieldKind {
     /// Every kind the kernels know, with its WGSL constant name.
-    pub const ALL: [(FieldKind, &'static str); 6] = [
+    pub const ALL: [(FieldKind, &'static str); 7] = [
         (FieldKind::Constant, "FIELD_CONSTANT"),
         (FieldKind::Slabs, "FIELD_SLABS"),
         (FieldKind::Gaussian, "FIELD_GAUSSIAN"),
         (FieldKind::Shell, "FIELD_SHELL"),
         (FieldKind::Linear, "FIELD_LINEAR"),
         (FieldKind::Grid, "FIELD_GRID"),
+        (FieldKind::HashMlp, "FIELD_HASH"),
     ];
 }
 

@@ -1,7 +1,8 @@
 //! The kernel registry: every `kernels/*.wgsl` file, loaded with
 //! `include_str!` and `kernels/common.wgsl` prepended (and, for a kernel
-//! that extends another, that kernel's file: `volume_diff` reads the
-//! forward's fields and buffers from `volume`), compiled once per process
+//! that extends another, that kernel's source, recursively: `hash_mlp`
+//! reads the forward's fields and buffers from `volume`, `volume_diff`
+//! extends `hash_mlp`), compiled once per process
 //! into compute pipelines (memoised by kernel and entry point).
 //!
 //! A unit test validates every file in `kernels/` with naga, listing the
@@ -47,7 +48,8 @@ pub const KERNELS: &[Kernel] = &[
     kernel!("rng"),
     kernel!("expm1"),
     kernel!("volume"),
-    kernel!("volume_diff" extends "volume"),
+    kernel!("hash_mlp" extends "volume"),
+    kernel!("volume_diff" extends "hash_mlp"),
     kernel!("voxels"),
     kernel!("transport"),
     kernel!("pathtrace"),
@@ -62,16 +64,24 @@ fn find(name: &str) -> Result<&'static Kernel> {
     })
 }
 
-/// The full source of kernel `name`: common.wgsl, the kernel it extends
-/// (if any), then the file.
+/// The full source of kernel `name`: common.wgsl, the chain of kernels it
+/// extends (the furthest first), then the file.
 pub fn source(name: &str) -> Result<String> {
+    Ok(format!("{COMMON}\n{}", own_chain(name, 0)?))
+}
+
+/// The texts of `name` and the kernels it extends, the furthest first.
+fn own_chain(name: &str, depth: usize) -> Result<String> {
     let k = find(name)?;
+    if depth > KERNELS.len() {
+        return Err(Error::invalid("kernel", format!("{name:?} extends itself")));
+    }
     let base = match k.base {
-        Some(b) => format!("// ---- kernels/{b}.wgsl ----\n{}\n", find(b)?.text),
+        Some(b) => format!("{}\n", own_chain(b, depth + 1)?),
         None => String::new(),
     };
     Ok(format!(
-        "{COMMON}\n{base}// ---- kernels/{}.wgsl ----\n{}",
+        "{base}// ---- kernels/{}.wgsl ----\n{}",
         k.name, k.text
     ))
 }

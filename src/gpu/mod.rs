@@ -18,6 +18,7 @@ pub mod rays;
 pub mod transport;
 pub mod volume;
 pub mod volume_diff;
+pub mod volume_hash;
 pub mod volume_session;
 pub mod voxels;
 

@@ -15,6 +15,7 @@ use super::buffers::{run, storage_in, storage_out, uniform, Pass};
 use super::context::GpuContext;
 use super::kernels::pipeline;
 use super::rays::RayParams;
+use super::volume_hash::{GpuHash, HashParams};
 use crate::budget::{bytes_for, MemBudget};
 use crate::camera::Camera;
 use crate::error::{Error, Result};
@@ -61,6 +62,9 @@ pub enum GpuField<'a> {
         g: [f32; 3],
     },
     Grid(GpuGrid<'a>),
+    /// Hash grid + MLP: density and colour from one network (its colour
+    /// replaces `color` / `color_grid`).
+    Hash(GpuHash<'a>),
 }
 
 /// The occupancy bitfield (x fastest, `res^3` bits).
@@ -190,6 +194,7 @@ impl VolParams {
                 p.sg_scale = v4(g.scale);
                 p.sg_n = [g.n[0], g.n[1], g.n[2], g.clamp as u32];
             }
+            GpuField::Hash(_) => p.field_kind = FieldKind::HashMlp as u32,
         }
         if let Some(g) = v.color_grid {
             p.color_grid = 1;
@@ -266,12 +271,15 @@ pub(super) fn validate(v: &VolumeInput) -> Result<()> {
 }
 
 /// The read-only buffers every volume kernel may bind: slabs, density
-/// grid, colour grid, occupancy (16-byte placeholders where unused).
+/// grid, colour grid, occupancy, the hash field's uniform and parameters
+/// (16-byte placeholders where unused).
 pub(super) struct FieldBuffers {
     pub slabs: wgpu::Buffer,
     pub sgrid: wgpu::Buffer,
     pub cgrid: wgpu::Buffer,
     pub occ: wgpu::Buffer,
+    pub hash_u: wgpu::Buffer,
+    pub hparams: wgpu::Buffer,
 }
 
 impl FieldBuffers {
@@ -287,7 +295,13 @@ impl FieldBuffers {
         };
         let cg = v.color_grid.map_or(none, |g| g.data);
         let occ: &[u32] = v.occupancy.map_or(&[], |o| o.bits);
+        let (hu, hp) = match v.field {
+            GpuField::Hash(h) => (h.uniform(), h.params),
+            _ => (HashParams::zeroed(), none),
+        };
         Ok(FieldBuffers {
+            hash_u: uniform(ctx, "volume hash field", &hu),
+            hparams: storage_in(ctx, "volume hash parameters", hp)?,
             slabs: storage_in(ctx, "volume slabs", &slabs)?,
             sgrid: storage_in(ctx, "volume density grid", sg)?,
             cgrid: storage_in(ctx, "volume colour grid", cg)?,
@@ -303,8 +317,13 @@ const LOOP_ITERS_PER_SAMPLE: u64 = 16;
 
 /// Refuses plans whose longest ray could exceed the driver's loop cap
 /// (see [`GpuContext::max_loop_iterations`]) instead of silently cutting
-/// rays short. The longest ray is bounded by the box diagonal.
+/// rays short. The longest ray is bounded by the box diagonal. A hash
+/// field is checked here too (it needs the context): its shapes, and one
+/// network evaluation against the cap.
 pub(super) fn check_loop_cap(ctx: &GpuContext, gen: &RayGen, v: &VolumeInput) -> Result<()> {
+    if let GpuField::Hash(h) = v.field {
+        h.validate(ctx)?;
+    }
     let Some(cap) = ctx.max_loop_iterations() else {
         return Ok(());
     };
@@ -355,6 +374,7 @@ pub fn f_fused(
     cam.validate()?;
     validate(v)?;
     check_loop_cap(ctx, gen, v)?;
+    refuse_hash(v, "f_fused")?;
     let n = ray_count(gen)? as u64;
     let out_bytes = n * std::mem::size_of::<GpuRayOut>() as u64;
     budget.check(
@@ -383,6 +403,18 @@ pub fn f_fused(
     };
     let rb = run(ctx, "f_fused", &[pass], &[&out])?;
     Ok((rb.take(0, n as usize)?, rb.gpu_s))
+}
+
+/// Refuses a hash field in a one-thread-a-ray kernel: the network runs one
+/// thread a sample (`kernels/hash_mlp.wgsl` header), in the unfused chain.
+pub(super) fn refuse_hash(v: &VolumeInput, what: &str) -> Result<()> {
+    if matches!(v.field, GpuField::Hash(_)) {
+        return Err(Error::NotSupported(format!(
+            "{what}: a hash_mlp field runs on the GPU in the unfused chain only (its network \
+             runs one thread a sample)"
+        )));
+    }
+    Ok(())
 }
 
 /// Bytes per sample of the unfused GPU chain: samp0 + samp1 (32) and the
@@ -487,6 +519,10 @@ pub(super) fn unfused_with(
     let count_p = pipeline(ctx, "volume", "f_samp_count")?;
     let fill_p = pipeline(ctx, "volume", "f_samp_fill")?;
     let int_p = pipeline(ctx, "volume", "f_int")?;
+    let hash_p = match v.field {
+        GpuField::Hash(_) => Some(pipeline(ctx, "hash_mlp", "f_hash_fill")?),
+        _ => None,
+    };
     let mut times = GpuTimes::default();
 
     // 1. Count samples per ray (all rays at once: 16 bytes a ray).
@@ -553,7 +589,26 @@ pub(super) fn unfused_with(
             n: rays,
             wg: 64,
         };
-        let rb = run(ctx, "f_samp_fill", &[fill], &[])?;
+        let hash_buffers = [
+            (0, &cu),
+            (1, &bu),
+            (8, &offb),
+            (9, &s0),
+            (10, &s1),
+            (17, &fb.hash_u),
+            (18, &fb.hparams),
+        ];
+        let mut passes = vec![fill];
+        if let Some(hp) = &hash_p {
+            passes.push(Pass {
+                label: "f_hash_fill",
+                pipeline: hp,
+                buffers: &hash_buffers,
+                n: m,
+                wg: 64,
+            });
+        }
+        let rb = run(ctx, "f_samp_fill", &passes, &[])?;
         times.samp += rb.gpu_s;
         let int = Pass {
             label: "f_int",

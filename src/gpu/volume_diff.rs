@@ -22,6 +22,12 @@
 //! word instead: thread order decides the rounding, so runs may differ in
 //! the last bits. It is measured against the fixed-point path.
 //!
+//! **Hash field.** Per batch, `f_diff_ray` runs twice around
+//! `f_diff_hash` (one thread a sample): stage 0 stores each sample's
+//! `dL/d(sigma, rgb)`, `f_diff_hash` back-propagates it through the network
+//! (every parameter one fixed-point value, scale from `bound_hash`) and
+//! leaves `dL/dx`, stage 1 walks again with it for the pose.
+//!
 //! **Pose.** Each workgroup reduces its 64 rays' `dL/d(rho, w)` in a fixed
 //! tree in workgroup memory; batches start at multiples of 64 rays so a
 //! workgroup's partial has one slot; the host sums the partials in ray
@@ -42,7 +48,7 @@ use crate::rays::RayGen;
 const WG: u32 = 64;
 
 /// Storage buffers `f_diff_ray` binds in one stage.
-const STORAGE_BINDINGS: u32 = 11;
+const STORAGE_BINDINGS: u32 = 12;
 
 /// What the backward takes besides the forward's [`VolumeInput`].
 #[derive(Clone, Copy, Debug)]
@@ -62,6 +68,8 @@ pub struct DiffInput<'a> {
     /// (grid node or parameter) and any one colour value.
     pub bound_sigma: f64,
     pub bound_color: f64,
+    /// The same for any one hash field parameter.
+    pub bound_hash: f64,
     /// f32 compare-exchange atomics instead of fixed point.
     pub float_atomic: bool,
 }
@@ -77,6 +85,8 @@ pub struct GpuGrads {
     pub param: Vec<f32>,
     /// Constant colour.
     pub color_const: [f32; 3],
+    /// Hash field parameters (flat order; empty unless the field is one).
+    pub hash: Vec<f32>,
     /// `dL/d delta` (rho, w), summed over workgroups in ray order in f64.
     pub dcam: [f64; 6],
     /// Samples walked backward.
@@ -88,7 +98,7 @@ pub struct GpuGrads {
 }
 
 /// Uniform of `kernels/volume_diff.wgsl` (keep in sync with `struct
-/// DiffParams` there): 6 vec4<f32>, 2 f32, 10 u32; 144 bytes.
+/// DiffParams` there): 6 vec4<f32>, 3 f32, 9 u32; 144 bytes.
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Pod, Zeroable)]
 struct DiffParams {
@@ -107,7 +117,9 @@ struct DiffParams {
     off_flags: u32,
     float_atomic: u32,
     part_base: u32,
-    _pad: [u32; 3],
+    off_hash: u32,
+    fx_hash: f32,
+    hash_stage: u32,
 }
 const _: () = assert!(std::mem::size_of::<DiffParams>() == 144);
 
@@ -145,11 +157,13 @@ pub fn fx_value(lo: u32, hi: u32, scale: f32) -> f64 {
 }
 
 /// Value offsets of the accumulator: density nodes, colour nodes x 3,
-/// parameters, constant colour x 3, the flag value; and the total.
+/// parameters, hash field parameters, constant colour x 3, the flag value;
+/// and the total.
 struct Layout {
     sigma: u32,
     color: u32,
     param: u32,
+    hash: u32,
     ccol: u32,
     flags: u32,
     total: u64,
@@ -168,7 +182,11 @@ impl Layout {
             GpuField::Slabs { sigma, .. } => sigma.len() as u64,
             _ => 0,
         };
-        let total = ns + nc + np + 3 + 1;
+        let nh = match v.field {
+            GpuField::Hash(h) => h.params.len() as u64,
+            _ => 0,
+        };
+        let total = ns + nc + np + nh + 3 + 1;
         let as_u32 = |x: u64| {
             u32::try_from(x).map_err(|_| {
                 Error::NotSupported(format!("f_diff: {total} gradient values exceed 2^32"))
@@ -178,8 +196,9 @@ impl Layout {
             sigma: 0,
             color: as_u32(ns)?,
             param: as_u32(ns + nc)?,
-            ccol: as_u32(ns + nc + np)?,
-            flags: as_u32(ns + nc + np + 3)?,
+            hash: as_u32(ns + nc + np)?,
+            ccol: as_u32(ns + nc + np + nh)?,
+            flags: as_u32(ns + nc + np + nh + 3)?,
             total,
         })
     }
@@ -221,6 +240,7 @@ pub fn f_diff(
         bytes_for(lay.total, 8 * 2).and_then(|b| b.checked_add(groups * 64)),
     )?;
     let (fx_sigma, fx_color) = (fx_scale(d.bound_sigma), fx_scale(d.bound_color));
+    let fx_hash = fx_scale(d.bound_hash);
     let v4 = |a: [f32; 3], w: f32| [a[0], a[1], a[2], w];
     let base = DiffParams {
         pose_r0: v4(d.pose_r[0], 0.0),
@@ -238,26 +258,35 @@ pub fn f_diff(
         off_flags: lay.flags,
         float_atomic: d.float_atomic as u32,
         part_base: 0,
-        _pad: [0; 3],
+        off_hash: lay.hash,
+        fx_hash,
+        hash_stage: 0,
     };
     let pipe = pipeline(ctx, "volume_diff", "f_diff_ray")?;
+    let hash_pipe = match v.field {
+        GpuField::Hash(_) => Some(pipeline(ctx, "volume_diff", "f_diff_hash")?),
+        _ => None,
+    };
     let upb = storage_in(ctx, "f_diff upstream", d.up)?;
     let acc = storage_out(ctx, "f_diff accumulators", lay.total * 8)?;
     let part = storage_out(ctx, "f_diff pose partials", groups * 32)?;
     let mut backward_s = 0.0;
     let fwd = unfused_with(ctx, cam, gen, v, budget, false, WG, |b| {
-        let du = uniform(
-            ctx,
-            "f_diff params",
-            &DiffParams {
+        let du = |hash_stage| {
+            let p = DiffParams {
                 part_base: b.start / WG,
+                hash_stage,
                 ..base
-            },
-        );
-        let pass = Pass {
-            label: "f_diff_ray",
-            pipeline: &pipe,
-            buffers: &[
+            };
+            uniform(ctx, "f_diff params", &p)
+        };
+        let (du0, du1) = (du(0), du(1));
+        let m = (b.samp0.size() / 16).max(1);
+        let sgrad_bytes = if hash_pipe.is_some() { m * 16 } else { 16 };
+        budget.check("gpu f_diff per-sample gradients", Some(sgrad_bytes))?;
+        let sgrad = storage_out(ctx, "f_diff per-sample gradients", sgrad_bytes)?;
+        let walk = |du| {
+            [
                 (0, b.cu),
                 (1, b.bu),
                 (2, &b.fb.slabs),
@@ -268,15 +297,48 @@ pub fn f_diff(
                 (9, b.samp0),
                 (10, b.samp1),
                 (11, b.persist),
-                (12, &du),
+                (12, du),
                 (13, &upb),
                 (14, &acc),
                 (15, &part),
-            ],
-            n: (b.end - b.start) as u64,
+                (19, &sgrad),
+            ]
+        };
+        let (w0, w1) = (walk(&du0), walk(&du1));
+        let rays = (b.end - b.start) as u64;
+        let ray_pass = |buffers| Pass {
+            label: "f_diff_ray",
+            pipeline: &pipe,
+            buffers,
+            n: rays,
             wg: WG,
         };
-        backward_s += run(ctx, "f_diff_ray", &[pass], &[])?.gpu_s;
+        let hash_buffers = [
+            (0, b.cu),
+            (1, b.bu),
+            (8, b.off),
+            (9, b.samp0),
+            (12, &du1),
+            (14, &acc),
+            (17, &b.fb.hash_u),
+            (18, &b.fb.hparams),
+            (19, &sgrad),
+        ];
+        let passes = match &hash_pipe {
+            None => vec![ray_pass(&w0)],
+            Some(hp) => vec![
+                ray_pass(&w0),
+                Pass {
+                    label: "f_diff_hash",
+                    pipeline: hp,
+                    buffers: &hash_buffers,
+                    n: m,
+                    wg: WG,
+                },
+                ray_pass(&w1),
+            ],
+        };
+        backward_s += run(ctx, "f_diff_ray", &passes, &[])?.gpu_s;
         Ok(())
     })?;
     let rb = run(ctx, "f_diff readback", &[], &[&acc, &part])?;
@@ -305,7 +367,8 @@ pub fn f_diff(
     Ok(GpuGrads {
         sigma: (lay.sigma..lay.color).map(|i| value(i, fx_sigma)).collect(),
         color: (lay.color..lay.param).map(|i| value(i, fx_color)).collect(),
-        param: (lay.param..lay.ccol).map(|i| value(i, fx_sigma)).collect(),
+        param: (lay.param..lay.hash).map(|i| value(i, fx_sigma)).collect(),
+        hash: (lay.hash..lay.ccol).map(|i| value(i, fx_hash)).collect(),
         color_const: [0, 1, 2].map(|c| value(lay.ccol + c, fx_color)),
         dcam,
         samples: fwd.rays.iter().map(|r: &GpuRayOut| r.n as u64).sum(),

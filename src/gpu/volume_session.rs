@@ -18,7 +18,9 @@ use super::buffers::{bind_group, storage_out, uniform};
 use super::context::{Dispatch, GpuContext};
 use super::kernels::pipeline;
 use super::rays::RayParams;
-use super::volume::{check_loop_cap, ray_count, validate, FieldBuffers, VolParams, VolumeInput};
+use super::volume::{
+    check_loop_cap, ray_count, refuse_hash, validate, FieldBuffers, VolParams, VolumeInput,
+};
 use crate::budget::{bytes_for, MemBudget};
 use crate::camera::Camera;
 use crate::error::{Error, Result};
@@ -67,6 +69,7 @@ impl VolumeSession {
         cam.validate()?;
         validate(v)?;
         check_loop_cap(ctx, gen, v)?;
+        refuse_hash(v, "volume session")?;
         let n = ray_count(gen)?;
         let px = std::mem::size_of::<GpuPixel>() as u64;
         budget.check("gpu session frame", bytes_for(n as u64, 48 + 2 * px))?;

@@ -6,16 +6,19 @@
 //! them (`FieldDesc::to_real::<f32>`, `Occupancy::<f32>::build`), then handed
 //! to the GPU layer as its own typed inputs. Composition (`f_img`) runs on
 //! the host over the GPU's per-ray results: it is a placement of one result
-//! per pixel for camera rays.
+//! per pixel for camera rays. A hash-grid + MLP field always runs the
+//! unfused chain (its network runs one thread a sample, `f_hash_fill`).
 
 use crate::budget::MemBudget;
 use crate::camera::Camera;
 use crate::error::{Error, Result};
 use crate::gpu::volume::{self as gv, GpuField, GpuGrid, GpuOccupancy, GpuRayOut, VolumeInput};
+use crate::gpu::volume_hash::{GpuHash, GpuLevel};
 use crate::gpu::GpuContext;
 use crate::rays::RayGen;
 
 use super::compose::{f_img, Compose};
+use super::field::hash::{DensityAct, HashMlp};
 use super::field::{ColorField, Field, Grid, Oob};
 use super::integrate::RayOut;
 use super::occupancy::Occupancy;
@@ -57,14 +60,47 @@ pub(super) struct GpuScene {
     pub color: ColorField<f32>,
     pub occ: Option<Occupancy<f32>>,
     pub m: March<f32>,
+    /// A hash field's levels, layer shapes and flat parameters (f32).
+    hash: Option<(Vec<GpuLevel>, Vec<[u32; 2]>, Vec<f32>)>,
+}
+
+/// What [`GpuHash`] borrows of a hash field, in the kernels' layout.
+fn hash_host(h: &HashMlp<f32>) -> (Vec<GpuLevel>, Vec<[u32; 2]>, Vec<f32>) {
+    let levels = h
+        .levels
+        .iter()
+        .map(|l| GpuLevel {
+            n: l.n,
+            top: l.top,
+            n1: l.n1,
+            dense: l.dense,
+        })
+        .collect();
+    let layers = h
+        .layers
+        .iter()
+        .map(|l| [l.inp as u32, l.out as u32])
+        .collect();
+    let mut flat = h.table.clone();
+    for l in &h.layers {
+        flat.extend_from_slice(&l.w);
+        flat.extend_from_slice(&l.b);
+    }
+    (levels, layers, flat)
 }
 
 impl GpuScene {
     pub(super) fn new(params: &VolumeParams, gen: &RayGen, budget: &MemBudget) -> Result<GpuScene> {
         let m = params.march::<f32>();
         m.validate()?;
+        let field = params.field.to_real::<f32>();
+        let hash = match &field {
+            Field::HashMlp(h) => Some(hash_host(h)),
+            _ => None,
+        };
         Ok(GpuScene {
-            field: params.field.to_real::<f32>(),
+            hash,
+            field,
             color: params.color.to_real::<f32>(),
             occ: match params.occupancy {
                 0 => None,
@@ -77,6 +113,11 @@ impl GpuScene {
             },
             m,
         })
+    }
+
+    /// Whether the field is a hash grid + MLP.
+    pub(super) fn is_hash(&self) -> bool {
+        self.hash.is_some()
     }
 
     /// The GPU layer's typed input (refused where no kernel reads the field).
@@ -109,20 +150,26 @@ impl GpuScene {
             },
             Field::Linear { a, g } => GpuField::Linear { a: *a, g: *g },
             Field::Grid(g) => GpuField::Grid(gpu_grid(g, 1, "density grid")?),
-            Field::HashMlp(_) => {
-                return Err(Error::NotSupported(
-                    "hash_mlp field: no GPU kernel (CPU only, issue 18)".into(),
-                ))
+            Field::HashMlp(h) => {
+                let Some((levels, layers, params)) = &self.hash else {
+                    return Err(Error::invalid("gpu scene", "hash field without its layout"));
+                };
+                GpuField::Hash(GpuHash {
+                    levels,
+                    features: h.features as u32,
+                    tsize: h.tsize as u32,
+                    relu: h.density == DensityAct::Relu,
+                    bmin: h.bmin,
+                    inv_ext: h.inv_ext,
+                    layers,
+                    params,
+                })
             }
         };
         let (cconst, cgrid) = match &self.color {
             ColorField::Constant(c) => (*c, None),
             ColorField::Grid(g) => ([0.0; 3], Some(gpu_grid(g, 3, "colour grid")?)),
-            ColorField::Mlp => {
-                return Err(Error::NotSupported(
-                    "mlp colour: no GPU kernel (CPU only, issue 18)".into(),
-                ))
-            }
+            ColorField::Mlp => ([0.0; 3], None),
         };
         let m = &self.m;
         Ok(VolumeInput {
@@ -162,6 +209,11 @@ pub fn render_gpu(
     let input = scene.input()?;
     let m = &scene.m;
     let mut tm = Timings::default();
+    let chain = if scene.is_hash() {
+        Chain::Unfused
+    } else {
+        chain
+    };
     let out: Vec<GpuRayOut> = match chain {
         Chain::Fused => {
             let (out, s) = gv::f_fused(ctx, cam, gen, &input, budget)?;

@@ -1,7 +1,8 @@
 //! A backward pass (`f_diff`) as named tensors: `dsigma` (grid-shaped),
 //! `dcolor` (nz, ny, nx, 3), their probe values `dsigma_probe` and
 //! `dcolor_probe` (the probes of `volume::loss`), `dsigma_param`,
-//! `dcolor_const`, per-sample gradients, `dcam` (6); counter `samples`,
+//! `dcolor_const`, `dhash` (a hash field's parameters, flat order),
+//! per-sample gradients, `dcam` (6); counter `samples`,
 //! metrics `grad_time_s`, `grads_per_s`, `bytes_per_sample`.
 
 use crate::error::Result;
@@ -55,6 +56,9 @@ pub fn grad_outputs<F: Real>(
     }
     if let Some(v) = &g.dsigma_param {
         out.tensor("dsigma_param", Tensor::real(&[v.len()], v.clone())?);
+    }
+    if let Some(v) = &g.dhash {
+        out.tensor("dhash", Tensor::real(&[v.len()], v.clone())?);
     }
     if let Some(c) = g.dcolor_const {
         out.tensor("dcolor_const", Tensor::real(&[3], c.to_vec())?);

@@ -52,6 +52,11 @@ pub fn grad(ctx: &OpCtx) -> Result<Outputs> {
     Ok(out)
 }
 
+/// The GPU backward's gradients (fixed-point reduction).
+pub fn grads(ctx: &OpCtx) -> Result<crate::volume::diff::Grads<f32>> {
+    Ok(run(ctx, false)?.0.grads)
+}
+
 /// `volume.render --grad-from` on the GPU: the gradient tensors into `out`.
 pub fn render_grads(ctx: &OpCtx, out: &mut Outputs) -> Result<()> {
     let (g, p) = run(ctx, false)?;

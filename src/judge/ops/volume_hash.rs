@@ -4,14 +4,14 @@
 //! `params.probes: {table: n, mlp: n, seed: s}`).
 
 use super::volume_diff::{loss_weights, options};
-use super::OpCtx;
+use super::{BackendKind, OpCtx};
 use crate::camera::Camera;
 use crate::error::{Error, Result};
 use crate::rays::RayGen;
 use crate::real::Real;
 use crate::scene::SceneDoc;
 use crate::tensor::{Outputs, Tensor};
-use crate::volume::diff::f_diff;
+use crate::volume::diff::{f_diff, Grads};
 use crate::volume::field::hash::{HashMlp, HashMlpDesc};
 use crate::volume::field::FieldDesc;
 use crate::volume::grad_outputs::hash_outputs;
@@ -27,7 +27,7 @@ ops! {
         "dparams (every parameter) and dx of sum_points g . (sigma, rgb), ours";
     "volume.hash_mlp_grad_fd" Cpu op_mlp_grad_fd ["points", "seed", "nodes"]
         "the same by central differences of the f64 referee";
-    "volume.hash_grad" Cpu op_grad ["probes", "w_seed", "chain", "reduce"]
+    "volume.hash_grad" CpuGpuF32 op_grad ["probes", "w_seed", "chain", "reduce"]
         "f_diff dhash at seeded parameter probes (dhash_probe), all dhash, dcam; params chain, reduce";
     "volume.hash_grad_fd" Cpu op_grad_fd ["probes", "w_seed", "chain", "reduce", "h"]
         "central differences of the f64 fused render loss at the same probes";
@@ -97,21 +97,22 @@ fn grad_in<F: Real>(ctx: &OpCtx) -> Result<Outputs> {
     let (cam, gen, p, d) = load(ctx)?;
     let w = loss_weights(ctx, &gen)?;
     let idx = probe_indices(ctx, &d)?;
-    let g = f_diff::<F>(
-        &cam,
-        &gen,
-        &p,
-        &w.upstream(),
-        &options(ctx)?,
-        None,
-        &ctx.budget,
-    )?;
+    let g = f_diff::<F>(&cam, &gen, &p, &w.upstream(), &options(ctx)?, None, &ctx.budget)?;
+    grad_tensors(g, &idx)
+}
+
+/// dhash_probe, dhash, dcam and time_s of a backward pass.
+fn grad_tensors<F: Real>(g: Grads<F>, idx: &[usize]) -> Result<Outputs> {
     let mut out = Outputs::default();
-    hash_outputs(g, &idx, &mut out)?;
+    hash_outputs(g, idx, &mut out)?;
     Ok(out)
 }
 
 fn op_grad(ctx: &OpCtx) -> Result<Outputs> {
+    if ctx.backend == BackendKind::Gpu {
+        let g = super::volume_gpu_diff::grads(ctx)?;
+        return grad_tensors(g, &probe_indices(ctx, &load(ctx)?.3)?);
+    }
     by_precision!(ctx, grad_in(ctx))
 }
 

@@ -17,6 +17,11 @@
 //!
 //! Trilinear corner weights are at most 1 and sum to 1, so a node's sum is
 //! bounded by the same figures. `t_0`, `t_1` come from `f_ray` in f32.
+//!
+//! A hash-grid + MLP field (colours in (0, 1), so `c_max = max(1, bg)`):
+//! any one parameter's gradient at a sample is at most `S max(|dL/dsigma_k|,
+//! max_ch |dL/dc_k|)`, `S` the field's sensitivity ([`hash_sensitivity`]),
+//! so its sum over samples is at most `B_h = S (B_s + B_c)`.
 
 use crate::budget::MemBudget;
 use crate::camera::Camera;
@@ -25,6 +30,7 @@ use crate::gpu::volume_diff::{f_diff as gpu_f_diff, DiffInput};
 use crate::gpu::GpuContext;
 use crate::rays::{f_ray, RayGen};
 
+use super::super::field::hash::HashMlp;
 use super::super::field::{ColorField, Field};
 use super::super::gpu::GpuScene;
 use super::super::VolumeParams;
@@ -74,7 +80,7 @@ pub fn f_diff_gpu(
     let cmax = match &scene.color {
         ColorField::Constant(c) => c.iter().fold(0.0f32, |a, v| a.max(v.abs())),
         ColorField::Grid(g) => g.data.iter().fold(0.0f32, |a, v| a.max(v.abs())),
-        ColorField::Mlp => 0.0,
+        ColorField::Mlp => 1.0,
     }
     .max(bg.iter().fold(0.0f32, |a, v| a.max(v.abs()))) as f64;
     let (mut bound_sigma, mut bound_color) = (0.0f64, 0.0f64);
@@ -100,6 +106,10 @@ pub fn f_diff_gpu(
         far: gen.far as f32,
         bound_sigma,
         bound_color,
+        bound_hash: match &scene.field {
+            Field::HashMlp(h) => hash_sensitivity(h) * (bound_sigma + bound_color),
+            _ => 0.0,
+        },
         float_atomic,
     };
     let g = gpu_f_diff(ctx, cam, gen, &input, &d, budget)?;
@@ -111,7 +121,7 @@ pub fn f_diff_gpu(
             dsigma_param: params_density.then_some(g.param),
             dcolor: matches!(scene.color, ColorField::Grid(_)).then_some(g.color),
             dcolor_const: matches!(scene.color, ColorField::Constant(_)).then_some(g.color_const),
-            dhash: None,
+            dhash: matches!(scene.field, Field::HashMlp(_)).then_some(g.hash),
             dsigma_samples: None,
             dcolor_samples: None,
             dcam: g.dcam.map(|v| v as f32),
@@ -121,6 +131,44 @@ pub fn f_diff_gpu(
         },
         forward_s: g.forward_s,
     })
+}
+
+/// A bound `S` of any one parameter's gradient per unit of
+/// `max |dL/d(sigma, rgb)|` at one point, by interval bounds through the
+/// network: activations `|a_q| <= A_q` forward (`A_0 = max |table|`, the
+/// trilinear weights sum to 1), then `|dL/dz| <= D_q` backward (`D = 1` at
+/// the outputs: softplus' and relu' <= 1, sigmoid' <= 1/4; `D_{q-1} =
+/// max_i sum_o |W_oi| D_q`); weights get `D_q A_q`, biases `D_q`, table
+/// entries `D` at the encoding.
+pub fn hash_sensitivity(h: &HashMlp<f32>) -> f64 {
+    let amax = |v: &[f32]| v.iter().fold(0.0f64, |m, x| m.max(x.abs() as f64));
+    let mut a = vec![amax(&h.table)];
+    for l in &h.layers[..h.layers.len() - 1] {
+        let top = a[a.len() - 1];
+        let z = (0..l.out)
+            .map(|o| {
+                amax(&l.b[o..=o])
+                    + l.w[o * l.inp..(o + 1) * l.inp]
+                        .iter()
+                        .map(|w| w.abs() as f64)
+                        .sum::<f64>()
+                        * top
+            })
+            .fold(0.0f64, f64::max);
+        a.push(z);
+    }
+    let (mut d, mut s) = (1.0f64, 0.0f64);
+    for (q, l) in h.layers.iter().enumerate().rev() {
+        s = s.max(d * a[q].max(1.0));
+        d *= (0..l.inp)
+            .map(|i| {
+                (0..l.out)
+                    .map(|o| l.w[o * l.inp + i].abs() as f64)
+                    .sum::<f64>()
+            })
+            .fold(0.0f64, f64::max);
+    }
+    s.max(d)
 }
 
 #[cfg(test)]
