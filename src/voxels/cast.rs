@@ -52,6 +52,17 @@ pub trait CastReal: Real {
     fn from_bits(b: u64) -> Self;
     /// `2^k`, exact, for k in the normal exponent range.
     fn exp2i(k: i32) -> Self;
+    /// The SSE cast ([`super::cast_sse`]): `Some` in f32 (bit-identical to
+    /// [`cast_with`] without contours), `None` in other precisions.
+    fn cast_sse<A: Addressing>(
+        _nodes: &[u32],
+        _depth: u32,
+        _o: [Self; 3],
+        _d: [Self; 3],
+        _p: &CastParams,
+    ) -> Option<CastHit<Self>> {
+        None
+    }
 }
 
 impl CastReal for f32 {
@@ -68,6 +79,16 @@ impl CastReal for f32 {
     #[inline]
     fn exp2i(k: i32) -> Self {
         f32::from_bits(((k + 127) as u32) << 23)
+    }
+    #[inline]
+    fn cast_sse<A: Addressing>(
+        nodes: &[u32],
+        depth: u32,
+        o: [f32; 3],
+        d: [f32; 3],
+        p: &CastParams,
+    ) -> Option<CastHit<f32>> {
+        Some(super::cast_sse::cast_sse::<A>(nodes, depth, o, d, p))
     }
 }
 

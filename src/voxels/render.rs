@@ -14,7 +14,7 @@ use crate::parallel::par_collect;
 use crate::real::Real;
 
 use super::attributes::{AttrForm, Attributes};
-use super::cast::{cast, cast_contours, cast_dag, CastHit, CastParams, CastReal};
+use super::cast::{cast, cast_contours, cast_dag, Addressing, CastHit, CastParams, CastReal};
 use super::dag::Dag;
 use super::octree::Octree;
 use super::referee::referee;
@@ -124,6 +124,22 @@ pub fn cast_all_dag<F: CastReal>(
     collect(par_collect("voxels.cast_dag", o.len(), |i| {
         cast_dag::<F>(&dag.nodes, dag.depth, o[i], d[i], p)
     }))
+}
+
+/// [`cast_all`] (addressing [`super::cast::Relative`]) or [`cast_all_dag`]
+/// ([`super::cast::Absolute`]) by the SSE cast ([`super::cast_sse`]): identical results
+/// in f32, `None` in other precisions.
+pub fn cast_all_sse<F: CastReal, A: Addressing>(
+    nodes: &[u32],
+    depth: u32,
+    o: &[[F; 3]],
+    d: &[[F; 3]],
+    p: &CastParams,
+) -> Option<VoxelHits<F>> {
+    let res = par_collect("voxels.cast_sse", o.len(), |i| {
+        F::cast_sse::<A>(nodes, depth, o[i], d[i], p)
+    });
+    Some(collect(res.into_iter().collect::<Option<Vec<_>>>()?))
 }
 
 /// [`cast_all`] with contours (`contours[attr]`, 0 = none); also returns
