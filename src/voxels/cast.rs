@@ -220,6 +220,9 @@ pub trait Addressing {
     /// `u32::MAX` where the layout cannot tell (the DAG: see
     /// [`super::dag::Dag::attr_index`]).
     fn leaf_attr(nodes: &[u32], parent: usize, desc: u32, c: u32) -> u32;
+    /// Slot where the node's children block starts (a prefetch hint only:
+    /// the node itself for a far pointer).
+    fn children(nodes: &[u32], parent: usize, desc: u32) -> usize;
 }
 
 /// ESVO octree addressing ([`super::octree`]): children at
@@ -245,6 +248,14 @@ impl Addressing for Relative {
         let leafmask = (desc >> 8) & !desc & 0xFF;
         nodes[2 * parent + 1] + (leafmask & ((1 << c) - 1)).count_ones()
     }
+    #[inline(always)]
+    fn children(_nodes: &[u32], parent: usize, desc: u32) -> usize {
+        if desc & 0x1_0000 != 0 {
+            parent
+        } else {
+            parent + (desc >> 17) as usize
+        }
+    }
 }
 
 impl Addressing for Absolute {
@@ -255,6 +266,10 @@ impl Addressing for Absolute {
     #[inline(always)]
     fn leaf_attr(_nodes: &[u32], _parent: usize, _desc: u32, _c: u32) -> u32 {
         u32::MAX
+    }
+    #[inline(always)]
+    fn children(nodes: &[u32], parent: usize, _desc: u32) -> usize {
+        nodes[2 * parent + 1] as usize
     }
 }
 
