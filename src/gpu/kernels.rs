@@ -49,6 +49,7 @@ pub const KERNELS: &[Kernel] = &[
     kernel!("volume"),
     kernel!("volume_diff" extends "volume"),
     kernel!("voxels"),
+    kernel!("voxel_attrs"),
     kernel!("transport"),
     kernel!("pathtrace"),
 ];

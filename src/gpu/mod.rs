@@ -19,6 +19,7 @@ pub mod transport;
 pub mod volume;
 pub mod volume_diff;
 pub mod volume_session;
+pub mod voxel_attrs;
 pub mod voxels;
 
 pub use context::{adapters, describe, AdapterSummary, GpuContext};
