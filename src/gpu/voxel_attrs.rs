@@ -146,7 +146,9 @@ mod tests {
             let got = g.decode(form, &idx).unwrap();
             let (mut worst, mut same) = (0f32, 0usize);
             for (k, &i) in idx.iter().enumerate() {
-                let Some((c, n)) = (i < a.leaves as u32).then(|| a.decode(form, i as usize)).flatten()
+                let Some((c, n)) = (i < a.leaves as u32)
+                    .then(|| a.decode(form, i as usize))
+                    .flatten()
                 else {
                     assert_eq!(got[k], GpuAttr::default(), "{form:?} index {i}");
                     continue;
@@ -154,11 +156,16 @@ mod tests {
                 assert_eq!(got[k].valid, 1);
                 let want = [c, n].concat();
                 let have = [got[k].colour, got[k].normal].concat();
-                let e = (0..6).map(|j| (want[j] - have[j]).abs()).fold(0f32, f32::max);
+                let e = (0..6)
+                    .map(|j| (want[j] - have[j]).abs())
+                    .fold(0f32, f32::max);
                 worst = worst.max(e);
                 same += (want == have) as usize;
             }
-            eprintln!("{form:?}: {same} of {} bit-identical, max |diff| {worst:e}", a.leaves);
+            eprintln!(
+                "{form:?}: {same} of {} bit-identical, max |diff| {worst:e}",
+                a.leaves
+            );
             assert!(worst <= 2f32.powi(-20), "{form:?}: max |diff| {worst:e}");
         }
     }

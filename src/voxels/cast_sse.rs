@@ -91,7 +91,9 @@ fn cast_sse2<A: Addressing>(
             desc = nodes[2 * parent];
             // Start fetching the children block now: a PUSH reads it about
             // twenty instructions later (the loop is load-latency bound).
-            let kids = nodes.as_ptr().wrapping_add(2 * A::children(nodes, parent, desc));
+            let kids = nodes
+                .as_ptr()
+                .wrapping_add(2 * A::children(nodes, parent, desc));
             _mm_prefetch::<_MM_HINT_T0>(kids as *const i8);
         }
         let tc = _mm_sub_ps(_mm_mul_ps(pos, coef), bias);
