@@ -1,6 +1,9 @@
 //! The one place CPU work fans out (pbrt's `ParallelFor`): every launch is
 //! labelled, and results never depend on the thread count because each index
-//! is computed independently and written to its own slot.
+//! is computed independently and written to its own slot. Each launch also
+//! feeds [`meter`] (progress for long renders; off unless enabled).
+
+pub mod meter;
 
 use rayon::prelude::*;
 
@@ -12,6 +15,7 @@ pub fn par_map_into<T: Send>(
     f: impl Fn(usize) -> T + Sync,
 ) {
     let _span = tracing::debug_span!("par_for", label, n = out.len()).entered();
+    let launch = meter::GLOBAL.open(label, out.len());
     out.par_chunks_mut(grain.max(1))
         .enumerate()
         .for_each(|(c, chunk)| {
@@ -19,6 +23,7 @@ pub fn par_map_into<T: Send>(
             for (k, slot) in chunk.iter_mut().enumerate() {
                 *slot = f(base + k);
             }
+            launch.advance(chunk.len());
         });
 }
 
@@ -30,9 +35,14 @@ pub fn par_chunks<T: Send>(
     f: impl Fn(usize, &mut [T]) + Sync,
 ) {
     let _span = tracing::debug_span!("par_chunks", label, n = out.len()).entered();
+    let launch = meter::GLOBAL.open(label, out.len());
     out.par_chunks_mut(grain.max(1))
         .enumerate()
-        .for_each(|(c, chunk)| f(c, chunk));
+        .for_each(|(c, chunk)| {
+            let n = chunk.len();
+            f(c, chunk);
+            launch.advance(n);
+        });
 }
 
 /// Maps `0..n` to a vector in parallel (index order is kept).
@@ -42,7 +52,15 @@ pub fn par_collect<T: Send>(
     f: impl Fn(usize) -> T + Sync + Send,
 ) -> Vec<T> {
     let _span = tracing::debug_span!("par_collect", label, n).entered();
-    (0..n).into_par_iter().map(f).collect()
+    let launch = meter::GLOBAL.open(label, n);
+    (0..n)
+        .into_par_iter()
+        .map(|i| {
+            let v = f(i);
+            launch.advance(1);
+            v
+        })
+        .collect()
 }
 
 /// Runs `f` on a pool of `threads` threads (0 = rayon's default).
@@ -57,7 +75,11 @@ pub fn with_threads<R: Send>(threads: usize, f: impl FnOnce() -> R + Send) -> R 
 /// mutable borrows (tiles of an output), so each writes only its own slots.
 pub fn par_each<T: Send>(label: &'static str, items: Vec<T>, f: impl Fn(usize, T) + Sync + Send) {
     let _span = tracing::debug_span!("par_each", label, n = items.len()).entered();
-    items.into_par_iter().enumerate().for_each(|(i, t)| f(i, t));
+    let launch = meter::GLOBAL.open(label, items.len());
+    items.into_par_iter().enumerate().for_each(|(i, t)| {
+        f(i, t);
+        launch.advance(1);
+    });
 }
 
 /// Sorts `v` in parallel (unstable: equal elements are indistinguishable).

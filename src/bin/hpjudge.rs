@@ -425,9 +425,9 @@ fn cmd_render(a: &RenderArgs) -> anyhow::Result<Outcome> {
         eprintln!("{n} frames rendered");
         return Ok(Outcome::Ok);
     }
-    let spinner = progress::spinner(&format!("rendering {}", a.scene.display()), false);
+    let follower = progress::follow(&format!("rendering {}", a.scene.display()), false);
     let outputs = render::render(&req);
-    spinner.finish_and_clear();
+    drop(follower);
     let outputs = outputs?;
     for (n, t) in &outputs.tensors {
         for p in write_tensor(out, n, t)? {
