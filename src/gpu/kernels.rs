@@ -51,6 +51,7 @@ pub const KERNELS: &[Kernel] = &[
     kernel!("hash_mlp" extends "volume"),
     kernel!("volume_diff" extends "hash_mlp"),
     kernel!("voxels"),
+    kernel!("voxel_attrs"),
     kernel!("transport"),
     kernel!("pathtrace"),
 ];

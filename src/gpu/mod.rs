@@ -20,6 +20,7 @@ pub mod volume;
 pub mod volume_diff;
 pub mod volume_hash;
 pub mod volume_session;
+pub mod voxel_attrs;
 pub mod voxels;
 
 pub use context::{adapters, describe, AdapterSummary, GpuContext};

@@ -129,6 +129,8 @@ impl Attributes {
     }
 
     /// Decoded (colour, normal) of leaf `i` in form `form` (None for `AttrForm::None`).
+    /// GPU twin: `kernels/voxel_attrs.wgsl` `decode_attrs` (host
+    /// `crate::gpu::voxel_attrs::GpuAttrs`; parity test there).
     pub fn decode(&self, form: AttrForm, i: usize) -> Option<([f32; 3], [f32; 3])> {
         match form {
             AttrForm::None => None,

@@ -52,6 +52,17 @@ pub trait CastReal: Real {
     fn from_bits(b: u64) -> Self;
     /// `2^k`, exact, for k in the normal exponent range.
     fn exp2i(k: i32) -> Self;
+    /// The SSE cast ([`super::cast_sse`]): `Some` in f32 (bit-identical to
+    /// [`cast_with`] without contours), `None` in other precisions.
+    fn cast_sse<A: Addressing>(
+        _nodes: &[u32],
+        _depth: u32,
+        _o: [Self; 3],
+        _d: [Self; 3],
+        _p: &CastParams,
+    ) -> Option<CastHit<Self>> {
+        None
+    }
 }
 
 impl CastReal for f32 {
@@ -68,6 +79,16 @@ impl CastReal for f32 {
     #[inline]
     fn exp2i(k: i32) -> Self {
         f32::from_bits(((k + 127) as u32) << 23)
+    }
+    #[inline]
+    fn cast_sse<A: Addressing>(
+        nodes: &[u32],
+        depth: u32,
+        o: [f32; 3],
+        d: [f32; 3],
+        p: &CastParams,
+    ) -> Option<CastHit<f32>> {
+        Some(super::cast_sse::cast_sse::<A>(nodes, depth, o, d, p))
     }
 }
 
@@ -199,6 +220,9 @@ pub trait Addressing {
     /// `u32::MAX` where the layout cannot tell (the DAG: see
     /// [`super::dag::Dag::attr_index`]).
     fn leaf_attr(nodes: &[u32], parent: usize, desc: u32, c: u32) -> u32;
+    /// Slot where the node's children block starts (a prefetch hint only:
+    /// the node itself for a far pointer).
+    fn children(nodes: &[u32], parent: usize, desc: u32) -> usize;
 }
 
 /// ESVO octree addressing ([`super::octree`]): children at
@@ -224,6 +248,14 @@ impl Addressing for Relative {
         let leafmask = (desc >> 8) & !desc & 0xFF;
         nodes[2 * parent + 1] + (leafmask & ((1 << c) - 1)).count_ones()
     }
+    #[inline(always)]
+    fn children(_nodes: &[u32], parent: usize, desc: u32) -> usize {
+        if desc & 0x1_0000 != 0 {
+            parent
+        } else {
+            parent + (desc >> 17) as usize
+        }
+    }
 }
 
 impl Addressing for Absolute {
@@ -234,6 +266,10 @@ impl Addressing for Absolute {
     #[inline(always)]
     fn leaf_attr(_nodes: &[u32], _parent: usize, _desc: u32, _c: u32) -> u32 {
         u32::MAX
+    }
+    #[inline(always)]
+    fn children(nodes: &[u32], parent: usize, _desc: u32) -> usize {
+        nodes[2 * parent + 1] as usize
     }
 }
 

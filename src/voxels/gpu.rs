@@ -2,19 +2,23 @@
 //! kernel's f32 exactly as [`super::cast::cast::<f32>`] rounds them, the
 //! contour decode table, and the kernel's per-ray results
 //! (`crate::gpu::voxels`, `kernels/voxels.wgsl`) in the renderer's
-//! [`VoxelHits`] conventions. [`super::through::Through::upload`] puts a
+//! [`VoxelHits`] conventions, and the attribute image with the decode on
+//! the GPU ([`attr_image_gpu`]). [`super::through::Through::upload`] puts a
 //! scene's structure on the GPU.
 
 use crate::budget::MemBudget;
 use crate::camera::Camera;
 use crate::error::Result;
+use crate::gpu::voxel_attrs::GpuAttrs;
 use crate::gpu::voxels::{GpuCast, GpuCastParams, GpuOctree, GpuVoxelHit, CONTOUR_LUT_LEN};
+use crate::gpu::GpuContext;
 use crate::rays::RayGen;
 
+use super::attributes::{AttrForm, Attributes};
 use super::batch::Batch;
 use super::cast::CastParams;
 use super::contour::decode;
-use super::render::VoxelHits;
+use super::render::{attr_indices, shade_decoded, VoxelHits};
 
 /// The kernel's contour decode table (`kernels/voxels.wgsl` `contour_lut`):
 /// [`decode::<f32>`] of every 18-bit normal code (3 f32 each), then of the
@@ -173,4 +177,22 @@ mod tests {
         assert_eq!(v.normal[1], [-1.0, 0.0, 0.0]);
         assert_eq!((v.capped, v.iters[1]), (1, 9));
     }
+}
+
+/// [`super::render::attr_image`] with the decode on the GPU
+/// (`kernels/voxel_attrs.wgsl` `decode_attrs`): the same leaf indices
+/// (`attr_index` of each hit voxel, as on the CPU), the same shading on
+/// the host, so the image equals the CPU's wherever the decode does
+/// (bit-identical on lavapipe: test in `crate::gpu::voxel_attrs`).
+pub fn attr_image_gpu(
+    ctx: &GpuContext,
+    h: &VoxelHits<f32>,
+    (attrs, form): (&Attributes, AttrForm),
+    attr_index: impl Fn([u32; 3]) -> Option<u32> + Sync,
+) -> Result<Vec<[f32; 3]>> {
+    let idx = attr_indices(h, attr_index);
+    let dec = GpuAttrs::new(ctx, attrs)?.decode(form, &idx)?;
+    Ok(shade_decoded(h, |i| {
+        (dec[i].valid == 1).then_some((dec[i].colour, dec[i].normal))
+    }))
 }

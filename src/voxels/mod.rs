@@ -8,6 +8,7 @@
 pub mod attributes;
 pub mod batch;
 pub mod cast;
+pub mod cast_sse;
 pub mod checks;
 pub mod contour;
 pub mod dag;

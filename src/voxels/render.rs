@@ -14,7 +14,7 @@ use crate::parallel::par_collect;
 use crate::real::Real;
 
 use super::attributes::{AttrForm, Attributes};
-use super::cast::{cast, cast_contours, cast_dag, CastHit, CastParams, CastReal};
+use super::cast::{cast, cast_contours, cast_dag, Addressing, CastHit, CastParams, CastReal};
 use super::dag::Dag;
 use super::octree::Octree;
 use super::referee::referee;
@@ -71,23 +71,46 @@ pub fn shade_attr<F: Real>(colour: [f32; 3], normal: [f32; 3]) -> [F; 3] {
 
 /// The image of a cast with attributes: each hit's leaf (found from its
 /// voxel by `attr_index`) decoded in form `form` and shaded by
-/// [`shade_attr`]; misses and inside starts as [`shade`].
+/// [`shade_attr`]; misses and inside starts as [`shade`]. GPU twin of the
+/// decode: [`super::gpu::attr_image_gpu`].
 pub fn attr_image<F: Real>(
     h: &VoxelHits<F>,
     attrs: &Attributes,
     form: AttrForm,
     attr_index: impl Fn([u32; 3]) -> Option<u32> + Sync,
 ) -> Vec<[F; 3]> {
-    par_collect("voxels.attr_image", h.hit.len(), |i| {
+    let idx = attr_indices(h, attr_index);
+    shade_decoded(h, |i| {
+        (idx[i] != u32::MAX)
+            .then(|| attrs.decode(form, idx[i] as usize))
+            .flatten()
+    })
+}
+
+/// The attribute index of each ray's hit leaf (`attr_index` of its voxel),
+/// `u32::MAX` for misses, inside starts and voxels without one.
+pub fn attr_indices<F: Real>(
+    h: &VoxelHits<F>,
+    attr_index: impl Fn([u32; 3]) -> Option<u32> + Sync,
+) -> Vec<u32> {
+    par_collect("voxels.attr_indices", h.hit.len(), |i| {
         let inside = h.normal[i].iter().all(|x| x.f64() == 0.0);
         if h.hit[i] == 0 || inside {
-            return shade(h.hit[i] == 1, h.normal[i]);
+            return u32::MAX;
         }
-        let v = h.leaf[i].map(|x| x as u32);
-        match attr_index(v).and_then(|a| attrs.decode(form, a as usize)) {
-            Some((c, n)) => shade_attr(c, n),
-            None => shade(true, h.normal[i]),
-        }
+        attr_index(h.leaf[i].map(|x| x as u32)).unwrap_or(u32::MAX)
+    })
+}
+
+/// The image from each ray's decoded (colour, normal) (`None`: shaded by
+/// [`shade`]).
+pub fn shade_decoded<F: Real>(
+    h: &VoxelHits<F>,
+    decoded: impl Fn(usize) -> Option<([f32; 3], [f32; 3])> + Sync,
+) -> Vec<[F; 3]> {
+    par_collect("voxels.attr_image", h.hit.len(), |i| match decoded(i) {
+        Some((c, n)) => shade_attr(c, n),
+        None => shade(h.hit[i] == 1, h.normal[i]),
     })
 }
 
@@ -124,6 +147,22 @@ pub fn cast_all_dag<F: CastReal>(
     collect(par_collect("voxels.cast_dag", o.len(), |i| {
         cast_dag::<F>(&dag.nodes, dag.depth, o[i], d[i], p)
     }))
+}
+
+/// [`cast_all`] (addressing [`super::cast::Relative`]) or [`cast_all_dag`]
+/// ([`super::cast::Absolute`]) by the SSE cast ([`super::cast_sse`]): identical results
+/// in f32, `None` in other precisions.
+pub fn cast_all_sse<F: CastReal, A: Addressing>(
+    nodes: &[u32],
+    depth: u32,
+    o: &[[F; 3]],
+    d: &[[F; 3]],
+    p: &CastParams,
+) -> Option<VoxelHits<F>> {
+    let res = par_collect("voxels.cast_sse", o.len(), |i| {
+        F::cast_sse::<A>(nodes, depth, o[i], d[i], p)
+    });
+    Some(collect(res.into_iter().collect::<Option<Vec<_>>>()?))
 }
 
 /// [`cast_all`] with contours (`contours[attr]`, 0 = none); also returns

@@ -8,12 +8,12 @@ use crate::error::{Error, Result};
 use crate::gpu::voxels::{GpuAddressing, GpuContours, GpuOctree};
 use crate::gpu::GpuContext;
 
-use super::cast::{CastParams, CastReal};
+use super::cast::{Absolute, CastParams, CastReal, Relative};
 use super::dag::Dag;
 use super::gpu::contour_lut;
 use super::octree::Octree;
 use super::packet::{cast_all_packet, cast_all_packet_dag};
-use super::render::{cast_all, cast_all_contours, cast_all_dag, VoxelHits};
+use super::render::{cast_all, cast_all_contours, cast_all_dag, cast_all_sse, VoxelHits};
 
 /// The CPU cast path (`voxels.render` param `cast`).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Deserialize)]
@@ -24,6 +24,27 @@ pub enum CastPath {
     PerRay,
     /// [`super::packet`]: lanes in lockstep, identical results.
     Packet,
+    /// [`super::cast_sse`]: one ray at a time, its three axes in one SSE
+    /// register, identical results (f32 only).
+    Sse,
+}
+
+impl CastPath {
+    /// Every path, the referee first.
+    pub const ALL: [CastPath; 3] = [CastPath::PerRay, CastPath::Packet, CastPath::Sse];
+
+    /// The path's name in scene and metric keys.
+    pub fn name(self) -> &'static str {
+        match self {
+            CastPath::PerRay => "per_ray",
+            CastPath::Packet => "packet",
+            CastPath::Sse => "sse",
+        }
+    }
+}
+
+fn sse_f32() -> Error {
+    Error::NotSupported("the sse cast is f32 only: use cast: per_ray or packet".into())
 }
 
 /// What a scene's rays are cast through, on either backend.
@@ -62,7 +83,8 @@ impl<'a> Through<'a> {
         }
     }
 
-    /// [`Through::cast_all`] by `path` (the packet path has no contours).
+    /// [`Through::cast_all`] by `path` (the packet and SSE paths have no
+    /// contours; the SSE path is f32 only).
     pub fn cast_by<F: CastReal>(
         &self,
         path: CastPath,
@@ -74,8 +96,14 @@ impl<'a> Through<'a> {
             (CastPath::PerRay, _) => Ok(self.cast_all(o, d, p)),
             (CastPath::Packet, Through::Octree(t)) => Ok(cast_all_packet(t, o, d, p)),
             (CastPath::Packet, Through::Dag(g)) => Ok(cast_all_packet_dag(g, o, d, p)),
-            (CastPath::Packet, Through::Contours(..)) => Err(Error::NotSupported(
-                "the packet cast has no contours: use cast: per_ray".into(),
+            (CastPath::Sse, Through::Octree(t)) => {
+                cast_all_sse::<F, Relative>(&t.nodes, t.depth, o, d, p).ok_or_else(sse_f32)
+            }
+            (CastPath::Sse, Through::Dag(g)) => {
+                cast_all_sse::<F, Absolute>(&g.nodes, g.depth, o, d, p).ok_or_else(sse_f32)
+            }
+            (CastPath::Packet | CastPath::Sse, Through::Contours(..)) => Err(Error::NotSupported(
+                format!("the {path:?} cast has no contours: use cast: per_ray"),
             )),
         }
     }

@@ -224,14 +224,21 @@ pub fn octree_vs_dag<F: CastReal>(
     }
 }
 
-/// Per structure (`octree`, `dag`, ...): the CPU per-ray cast, the CPU
-/// packet cast and the GPU cast of the same rays in one run, coherent (the
-/// camera `coh`; the GPU generates its own camera rays) and incoherent
-/// (`inc`). Metrics `{structure}_{per_ray|packet}_{set}_mrays_per_cpu_s`,
-/// `{structure}_{set}_packet_speedup` (per CPU-second, same run),
-/// `{structure}_gpu_{set}_mrays_per_s`, `{structure}_{set}_mean_iters`,
+/// Interleaved rounds of the CPU paths in [`cpu_vs_gpu`].
+pub const ROUNDS: u32 = 3;
+
+/// Per structure (`octree`, `dag`, ...): every CPU cast path
+/// ([`CastPath::ALL`]) and the GPU cast of the same rays in one run, coherent
+/// (the camera `coh`; the GPU generates its own camera rays) and incoherent
+/// (`inc`). The CPU paths run in [`ROUNDS`] interleaved rounds (all see the
+/// same machine load). Metrics `{structure}_{path}_{set}_mrays_per_cpu_s`
+/// and `..._mrays_per_s` (wall), `{structure}_{set}_{path}_speedup` (over
+/// per-ray, per CPU-second, same run),
+/// `{structure}_{set}_{path}_differing_rays` (hit, t, leaf or normal bits
+/// against per-ray), `{structure}_gpu_{set}_mrays_per_s`,
+/// `{structure}_{set}_mean_iters` (per-ray; the GPU's are the same),
 /// `{structure}_{set}_node_bytes_per_ray` (4 x node words the kernel read;
-/// the CPU casts read the same words).
+/// the per-ray CPU cast reads the same words).
 pub fn cpu_vs_gpu(
     structures: &[(&str, Through)],
     gpu: &GpuContext,
@@ -251,18 +258,38 @@ pub fn cpu_vs_gpu(
         // Warm-up: the first dispatch of each entry compiles it.
         g.cast_rays(&packed[..packed.len().min(64)], &gpu_params(&p_inc), budget)?;
         for (set, b, p) in [("coherent", coh, p_coh), ("incoherent", inc, p_inc)] {
-            let n = b.o.len() as f64;
-            let mut rate = [0.0; 2];
-            for (k, path) in [CastPath::PerRay, CastPath::Packet].into_iter().enumerate() {
-                let (h, _, cpu) = timed(|| through.cast_by(path, &b.o, &b.d, &p));
-                h?;
-                rate[k] = per_cpu_s(n, cpu);
-                let pname = ["per_ray", "packet"][k];
-                out.metric(&format!("{sname}_{pname}_{set}_mrays_per_cpu_s"), rate[k]);
+            let n = b.o.len() as f64 * ROUNDS as f64;
+            let mut acc = [(0.0, 0.0); CastPath::ALL.len()];
+            let mut res: Vec<VoxelHits<f32>> = vec![VoxelHits::default(); acc.len()];
+            for _ in 0..ROUNDS {
+                for (k, path) in CastPath::ALL.into_iter().enumerate() {
+                    let (h, wall, cpu) = timed(|| through.cast_by(path, &b.o, &b.d, &p));
+                    res[k] = h?;
+                    acc[k] = (acc[k].0 + wall, acc[k].1 + cpu);
+                }
+            }
+            let base = per_cpu_s(n, acc[0].1);
+            for (k, path) in CastPath::ALL.into_iter().enumerate() {
+                let (pname, rate) = (path.name(), per_cpu_s(n, acc[k].1));
+                out.metric(&format!("{sname}_{pname}_{set}_mrays_per_cpu_s"), rate);
+                out.metric(
+                    &format!("{sname}_{pname}_{set}_mrays_per_s"),
+                    n / acc[k].0.max(1e-12) / 1e6,
+                );
+                if k > 0 {
+                    out.metric(
+                        &format!("{sname}_{set}_{pname}_speedup"),
+                        rate / base.max(1e-12),
+                    );
+                    out.metric(
+                        &format!("{sname}_{set}_{pname}_differing_rays"),
+                        differing(&res[0], &res[k]) as f64,
+                    );
+                }
             }
             out.metric(
-                &format!("{sname}_{set}_packet_speedup"),
-                rate[1] / rate[0].max(1e-12),
+                &format!("{sname}_{set}_mean_iters"),
+                mean(res[0].iters.iter().map(|&i| i as f64)),
             );
             let gc = if set == "coherent" {
                 g.cast_camera(cam, gen, &gpu_params(&p), false, budget)?
@@ -273,10 +300,6 @@ pub fn cpu_vs_gpu(
             out.metric(
                 &format!("{sname}_gpu_{set}_mrays_per_s"),
                 m / gc.gpu_s.max(1e-12) / 1e6,
-            );
-            out.metric(
-                &format!("{sname}_{set}_mean_iters"),
-                mean(gc.hits.iter().map(|h| h.iters as f64)),
             );
             out.metric(
                 &format!("{sname}_{set}_node_bytes_per_ray"),
