@@ -19,7 +19,7 @@ use crate::tensor::Tensor;
 
 /// Inputs generated in all (CI included).
 const INPUTS: u32 = 20_000;
-/// Slowest load accepted per input.
+/// Slowest refusal accepted per input (a loaded input: 3x its original).
 const MAX_SECONDS: f64 = 1.0;
 
 #[derive(Clone, Copy, PartialEq, Eq, Debug)]
@@ -267,7 +267,8 @@ fn load(kind: Kind, path: &Path, th: &Thresholds) -> Result<(), String> {
 }
 
 #[test]
-fn twenty_thousand_mutated_inputs_each_load_or_are_refused_within_a_second() {
+fn twenty_thousand_mutated_inputs_are_refused_within_a_second_or_load_no_slower_than_their_original(
+) {
     let files = corpus();
     assert!(files.len() >= 30, "corpus of {} files", files.len());
     let root = Path::new(env!("CARGO_MANIFEST_DIR"));
@@ -299,6 +300,13 @@ fn twenty_thousand_mutated_inputs_each_load_or_are_refused_within_a_second() {
             Kind::Manifest => tests.join("fuzz/manifest.yaml"),
             _ => dir.join(src.file_name().unwrap()),
         };
+        // A mutant that loads may do the original's real work (a mesh scene
+        // voxelises its mesh): it is held to 3x the original's own load time
+        // under the same machine load; a refusal is held to MAX_SECONDS.
+        std::fs::write(&target, &original).unwrap();
+        let t = Instant::now();
+        let _ = load(*kind, &target, &th);
+        let loaded_limit = MAX_SECONDS.max(3.0 * t.elapsed().as_secs_f64());
         for k in 0..per_file {
             let mut r = Rng {
                 seed: 0x11,
@@ -331,12 +339,21 @@ fn twenty_thousand_mutated_inputs_each_load_or_are_refused_within_a_second() {
             let res = std::panic::catch_unwind(|| load(*kind, &target, &th));
             let secs = t.elapsed().as_secs_f64();
             slowest = slowest.max(secs);
-            match res {
-                Ok(Ok(())) => loaded += 1,
-                Ok(Err(_)) => refused += 1,
-                Err(_) => problems.push(format!("{} input {k}: panicked", src.display())),
-            }
-            if secs > MAX_SECONDS {
+            let limit = match res {
+                Ok(Ok(())) => {
+                    loaded += 1;
+                    loaded_limit
+                }
+                Ok(Err(_)) => {
+                    refused += 1;
+                    MAX_SECONDS
+                }
+                Err(_) => {
+                    problems.push(format!("{} input {k}: panicked", src.display()));
+                    MAX_SECONDS
+                }
+            };
+            if secs > limit {
                 problems.push(format!("{} input {k}: took {secs:.2} s", src.display()));
             }
         }

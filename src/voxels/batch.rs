@@ -3,6 +3,13 @@
 //! (H, W)), the hard and incoherent sets of `raysets` (shaped (N,), hard
 //! rays with their `kind`), or replayed rays. The referee widens the same
 //! rays to f64, so it judges exactly the rays the cast saw.
+//!
+//! Ray sources of the voxel ops (`params.rays`): `camera` (default: the scene's camera, tensors
+//! shaped (H, W)), `hard` (`count` rays of each hard kind, shaped (N,), plus
+//! `kind` (int32)), `incoherent` (`count` rays, origins uniform in the box,
+//! uniform directions); `render --rays FILE` replays dumped rays (shape
+//! (N,)), and `--dump-failing` adds `rays` (N, 9). `seed` defaults to the
+//! run seed. Rays are made in the run's precision (`voxels::batch`).
 
 use crate::budget::{bytes_for, MemBudget};
 use crate::camera::Camera;

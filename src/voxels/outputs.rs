@@ -1,4 +1,10 @@
 //! Voxel casts and octree builds as named tensors, metrics and counters.
+//!
+//! `voxels.gpu_parity` outputs the GPU's `hit`, `t`, `leaf`, `normal`,
+//! `iters`, `leaf_key`, the CPU's as `cpu_*`, and `excused` (uint8,
+//! `voxels::checks::excused`; `ulp_margin` defaults to 2^-22, one f32 ulp
+//! of the octree's [1, 2) coordinates); counters `differ`, `excused`,
+//! `unexcused`; `identical_frac` (scalar tensor and metric).
 
 use crate::error::Result;
 use crate::gpu::voxels::GpuCast;

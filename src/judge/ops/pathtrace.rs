@@ -228,14 +228,10 @@ fn rmse_vs_reference(ctx: &OpCtx) -> Result<Outputs> {
     let s = load(ctx)?;
     let reference = read_reference(ctx, &s, &ctx.param_req::<String>("reference")?)?;
     let (_, img, mut out) = rendered(ctx)?;
-    out.tensor(
-        "rmse",
-        Tensor::scalar(mse(&img.rgb, &reference.rgb, true).sqrt()),
-    );
-    out.tensor(
-        "rmse_raw",
-        Tensor::scalar(mse(&img.rgb, &reference.rgb, false).sqrt()),
-    );
+    for (name, clamp) in [("rmse", true), ("rmse_raw", false)] {
+        let e = mse(&img.rgb, &reference.rgb, clamp).sqrt();
+        out.tensor(name, Tensor::scalar(e));
+    }
     Ok(out)
 }
 

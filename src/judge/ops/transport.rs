@@ -1,12 +1,8 @@
-//! Operations of the `transport` renderer (curved rays): the render (CPU
-//! fan-out, or `kernels/transport.wgsl` under `backend: gpu`, f32, the
-//! pipeline built before the timer starts), its referees
-//! (`transport::referee` by way of `scene::transport_refs`, `referee_kerr`:
-//! closed forms and quadratures in f64), its self-checks
-//! (`transport::checks`, `image_checks`), the GPU image band
-//! (`transport::gpu_parity`) and the backend comparison
-//! (`judge::measure::transport`). SCENES.md lists the render's outputs per
-//! task (`transport::outputs`).
+//! Operations of the `transport` renderer (curved rays; CPU fan-out or
+//! `kernels/transport.wgsl`): the render (outputs per task in
+//! `transport::outputs`), referees (`transport::referee`, `referee_kerr`),
+//! self-checks (`transport::checks`, `image_checks`), the GPU image band
+//! (`transport::gpu_parity`) and backend timings (`judge::measure::transport`).
 
 use super::{BackendKind, OpCtx};
 use crate::error::{Error, Result};

@@ -97,7 +97,15 @@ fn grad_in<F: Real>(ctx: &OpCtx) -> Result<Outputs> {
     let (cam, gen, p, d) = load(ctx)?;
     let w = loss_weights(ctx, &gen)?;
     let idx = probe_indices(ctx, &d)?;
-    let g = f_diff::<F>(&cam, &gen, &p, &w.upstream(), &options(ctx)?, None, &ctx.budget)?;
+    let g = f_diff::<F>(
+        &cam,
+        &gen,
+        &p,
+        &w.upstream(),
+        &options(ctx)?,
+        None,
+        &ctx.budget,
+    )?;
     grad_tensors(g, &idx)
 }
 

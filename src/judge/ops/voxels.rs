@@ -4,21 +4,10 @@
 //! `referee_bounds`), harnesses (`voxels::checks`) and timings
 //! (`judge::measure::voxels`).
 //!
-//! Ray sources (`params.rays`): `camera` (default: the scene's camera, tensors
-//! shaped (H, W)), `hard` (`count` rays of each hard kind, shaped (N,), plus
-//! `kind` (int32)), `incoherent` (`count` rays, origins uniform in the box,
-//! uniform directions); `render --rays FILE` replays dumped rays (shape
-//! (N,)), and `--dump-failing` adds `rays` (N, 9). `seed` defaults to the
-//! run seed. Rays are made in the run's precision (`voxels::batch`).
+//! Ray sources (`params.rays`) are documented in `voxels::batch`.
 //! `voxels.render` casts through the scene's structure (`voxels::through`:
 //! octree, `structure: dag`, `contours: true`) on either backend; `cast`:
-//! `per_ray` (default) or `packet` (`voxels::packet`, identical outputs).
-//!
-//! `voxels.gpu_parity` outputs the GPU's `hit`, `t`, `leaf`, `normal`,
-//! `iters`, `leaf_key`, the CPU's as `cpu_*`, and `excused` (uint8,
-//! `voxels::checks::excused`; `ulp_margin` defaults to 2^-22, one f32 ulp
-//! of the octree's [1, 2) coordinates); counters `differ`, `excused`,
-//! `unexcused`; `identical_frac` (scalar tensor and metric).
+//! `per_ray` (default), `packet` or `sse` (`voxels::through::CastPath`, identical outputs).
 //!
 //! Scene key `attributes: plain | dxt` shades `voxels.render`'s image from
 //! the hit leaves' decoded colours and normals (CPU only);
