@@ -175,13 +175,18 @@ fn column(a: &[[f64; 4]; 8], l: usize) -> [f64; 8] {
 /// The scalar path's result for a ray that never takes a lane step
 /// (non-finite start or `max_steps = 0`).
 fn at_start(st: &Spacetime<f64>, y0: [f64; 8], end: End) -> Trace<f64, 8> {
+    ended(y0, 0.0, end, 0, st.h(&y0).abs())
+}
+
+/// A fixed-step trace's result (no rejected steps, no error estimate).
+fn ended(y: [f64; 8], lambda: f64, end: End, steps: u64, h_drift: f64) -> Trace<f64, 8> {
     Trace {
-        y: y0,
-        lambda: 0.0,
+        y,
+        lambda,
         end,
-        steps: 0,
+        steps,
         rejected: 0,
-        h_drift: st.h(&y0).abs(),
+        h_drift,
         err_est: 0.0,
     }
 }
@@ -264,15 +269,8 @@ fn run_chunk<V: Lanes>(
         for l in 0..4 {
             let Some(i) = bl.ray[l] else { continue };
             if !fin[l] {
-                out[i] = Trace {
-                    y: column(&bl.y, l),
-                    lambda: bl.lambda[l],
-                    end: End::NonFinite,
-                    steps: bl.steps[l],
-                    rejected: 0,
-                    h_drift: bl.h_drift[l],
-                    err_est: 0.0,
-                };
+                let y = column(&bl.y, l);
+                out[i] = ended(y, bl.lambda[l], End::NonFinite, bl.steps[l], bl.h_drift[l]);
                 bl.ray[l] = None;
                 continue;
             }
@@ -284,15 +282,9 @@ fn run_chunk<V: Lanes>(
             if fires {
                 let (y0c, y1c) = (column(&bl.y, l), column(&y1a, l));
                 if let Some((e, th, yc)) = crossed(st, opt, events, &bl.gs[l], &y0c, &y1c, ha[l]) {
-                    out[i] = Trace {
-                        y: yc,
-                        lambda: bl.lambda[l] + th * ha[l],
-                        end: End::Event(e),
-                        steps: bl.steps[l] + 1,
-                        rejected: 0,
-                        h_drift: bl.h_drift[l].max(st.h(&yc).abs()),
-                        err_est: 0.0,
-                    };
+                    let (lambda, drift) = (bl.lambda[l] + th * ha[l], st.h(&yc).abs());
+                    let drift = bl.h_drift[l].max(drift);
+                    out[i] = ended(yc, lambda, End::Event(e), bl.steps[l] + 1, drift);
                     bl.ray[l] = None;
                     continue;
                 }
@@ -304,15 +296,8 @@ fn run_chunk<V: Lanes>(
             bl.lambda[l] += ha[l];
             bl.h_drift[l] = bl.h_drift[l].max(hna[l].abs());
             if bl.steps[l] >= opt.max_steps {
-                out[i] = Trace {
-                    y: column(&y1a, l),
-                    lambda: bl.lambda[l],
-                    end: End::MaxSteps,
-                    steps: bl.steps[l],
-                    rejected: 0,
-                    h_drift: bl.h_drift[l],
-                    err_est: 0.0,
-                };
+                let y = column(&y1a, l);
+                out[i] = ended(y, bl.lambda[l], End::MaxSteps, bl.steps[l], bl.h_drift[l]);
                 bl.ray[l] = None;
             }
         }
