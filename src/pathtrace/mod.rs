@@ -20,6 +20,8 @@ pub mod bsdf8;
 pub mod checks;
 pub mod gpu;
 pub mod integrator;
+#[cfg(test)]
+mod lane_referee_tests;
 pub mod lanes;
 pub mod listed;
 pub mod outputs;

@@ -110,74 +110,11 @@ pub fn trace_paths8(
 
 #[cfg(test)]
 mod tests {
-    use super::*;
-    use crate::budget::MemBudget;
-    use crate::camera::Camera;
-    use crate::pathtrace::bsdf::Material;
-    use crate::pathtrace::integrator::{render, RenderParams, Tracer};
-    use crate::pathtrace::shapes::{Quad, Shape, Sphere};
+    use crate::pathtrace::integrator::Tracer;
+    use crate::pathtrace::lane_referee_tests::assert_renders_as_scalar;
 
-    /// A light, a floor, a metal and a glass sphere.
     #[test]
     fn packet_render_equals_the_scalar_render_bit_for_bit() {
-        let v = Vec3A::new;
-        let quad = |c, u, w| Shape::Quad(Quad::new(c, u, w).unwrap());
-        let ball = |c, r| {
-            Shape::Sphere(Sphere {
-                centre: c,
-                radius: r,
-            })
-        };
-        let objs = [
-            (
-                quad(v(-0.3, 1.5, -0.3), v(0.6, 0.0, 0.0), v(0.0, 0.0, 0.6)),
-                1,
-            ),
-            (
-                quad(v(-2.0, -1.0, -2.0), v(0.0, 0.0, 4.0), v(4.0, 0.0, 0.0)),
-                0,
-            ),
-            (ball(v(-0.5, 0.0, 0.0), 0.5), 2),
-            (ball(v(0.6, -0.3, 0.2), 0.4), 3),
-        ];
-        let mats = vec![
-            Material::Lambertian {
-                albedo: Vec3A::splat(0.7),
-            },
-            Material::Emitter {
-                radiance: Vec3A::splat(10.0),
-            },
-            Material::RoughConductor {
-                alpha: 0.1,
-                reflectance: v(0.8, 0.8, 0.9),
-            },
-            Material::Dielectric { ior: 1.5 },
-        ];
-        let scene = Scene::new(&objs, mats, [0.1, 0.1, 0.1]).unwrap();
-        // 24 x 24 at 13 spp: a partial tile, packets spanning pixels, a last
-        // packet of fewer than eight paths; 17 x 2 at 300 spp: a batch of
-        // BATCH paths ends inside a pixel (16 x 300 > 4096).
-        for (w, h, spp) in [(24, 24, 13), (17, 2, 300)] {
-            let cam =
-                Camera::pinhole_look_at([0.0, 0.0, 4.0], [0.0; 3], [0.0, 1.0, 0.0], 40.0, w, h)
-                    .unwrap()
-                    .to_real(w, h);
-            let mut p = RenderParams {
-                width: w,
-                height: h,
-                spp,
-                seed: 3,
-                max_bounces: 64,
-                rr_depth: 2,
-                tracer: Tracer::Packet,
-            };
-            let b = MemBudget::fixed(1 << 30);
-            let a = render(&scene, &cam, &p, &b).unwrap();
-            p.tracer = Tracer::Scalar;
-            let s = render(&scene, &cam, &p, &b).unwrap();
-            assert_eq!(a.rgb, s.rgb);
-            assert_eq!(a.variance, s.variance);
-            assert!(a.rgb.iter().any(|x| x[0] > 0.0));
-        }
+        assert_renders_as_scalar(Tracer::Packet);
     }
 }
