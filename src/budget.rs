@@ -59,6 +59,31 @@ pub fn parse_mem_available(meminfo: &str) -> Option<u64> {
     kb.checked_mul(1024)
 }
 
+/// A per-render work budget: the product of `factors` (each a count and
+/// what it counts) must be at most `2^log2` `unit`, or the render is refused
+/// as `key` before any work, instead of running for days. Each renderer sets
+/// its own limit from its measured rate (`pathtrace::integrator::MAX_PATHS`,
+/// `scene::transport::MAX_PHOTON_STEPS`, `scene::volume::MAX_SAMPLES`,
+/// `scene::voxels::MAX_BUILD_CELLS`).
+pub fn check_work(key: &str, factors: &[(u64, &str)], unit: &str, limit: u64) -> Result<()> {
+    let total = factors.iter().try_fold(1u64, |a, &(n, _)| a.checked_mul(n));
+    if total.is_some_and(|t| t <= limit) {
+        return Ok(());
+    }
+    let terms: Vec<String> = factors.iter().map(|(n, w)| format!("{n} {w}")).collect();
+    let total = total.map_or("over 2^64".to_string(), |t| t.to_string());
+    let sum = match factors.len() {
+        1 => String::new(),
+        _ => format!(" = {total}"),
+    };
+    let why = format!(
+        "{}{sum}: over the work budget of 2^{} {unit}",
+        terms.join(" x "),
+        limit.trailing_zeros()
+    );
+    Err(Error::invalid(key, why))
+}
+
 /// Parses a size like `512M`, `2G`, `1048576` (bytes; K/M/G/T are powers of 1024).
 pub fn parse_size(s: &str) -> std::result::Result<u64, String> {
     let s = s.trim();
@@ -88,6 +113,41 @@ mod tests {
         let e = b.check("rays", Some(1001)).unwrap_err().to_string();
         assert!(e.contains("rays needs 1001 bytes"), "{e}");
         assert!(b.check("huge", bytes_for(u64::MAX, 2)).is_err());
+    }
+
+    #[test]
+    fn work_over_its_budget_is_refused_naming_key_factors_and_limit() {
+        assert!(check_work(
+            "spp",
+            &[(1 << 10, "pixels"), (1 << 26, "spp")],
+            "paths per render",
+            1 << 36
+        )
+        .is_ok());
+        let e = check_work(
+            "spp",
+            &[(1 << 10, "pixels"), ((1 << 26) + 1, "spp")],
+            "paths per render",
+            1 << 36,
+        )
+        .unwrap_err()
+        .to_string();
+        assert!(
+            e.contains("spp") && e.contains("1024 pixels x 67108865 spp") && e.contains("2^36"),
+            "{e}"
+        );
+        let e = check_work(
+            "n",
+            &[(u64::MAX, "rays"), (2, "steps")],
+            "steps per render",
+            1 << 40,
+        )
+        .unwrap_err()
+        .to_string();
+        assert!(
+            e.contains("= over 2^64: over the work budget of 2^40 steps per render"),
+            "{e}"
+        );
     }
 
     #[test]

@@ -899,3 +899,88 @@ fn path_tracer_refuses_f64_rays_grad_from_and_absurd_spp_before_work() {
         text(&o)
     );
 }
+
+/// Absurd work in each renderer's scene: (op, scene, overrides, key named).
+type Work = (
+    &'static str,
+    &'static str,
+    &'static [(&'static str, &'static str)],
+    &'static str,
+);
+const ABSURD_WORK: [Work; 5] = [
+    (
+        "transport",
+        "grin_fibre.yaml",
+        &[("task.stop", "{type: steps, n: 4000000000}")],
+        "task.stop.n",
+    ),
+    (
+        "transport",
+        "kerr_shadow.yaml",
+        &[("max_steps", "4000000000")],
+        "max_steps",
+    ),
+    ("voxels", "voxel_sphere.yaml", &[("depth", "22")], "depth"),
+    (
+        "voxels",
+        "menger_sponge.yaml",
+        &[("depth", "14"), ("level", "8")],
+        "depth",
+    ),
+    (
+        "volume",
+        "vol_gaussian.yaml",
+        &[
+            ("width", "1024"),
+            ("height", "1024"),
+            ("max_steps", "16777216"),
+            ("dt", "2.5e-7"),
+            ("early_stop", "0"),
+        ],
+        "max_steps",
+    ),
+];
+
+/// The old binary rendered each of these for hours (killed at 10 s) and
+/// `check` accepted them.
+#[test]
+fn absurd_steps_depths_and_samples_are_refused_by_render_and_check_before_work() {
+    let d = tmp("work");
+    for (op, scene, sets, key) in ABSURD_WORK {
+        let mut c = hpjudge();
+        c.args(["render", &format!("TESTS/scenes/{scene}")]);
+        for (k, v) in sets {
+            c.args(["--set", &format!("{k}={v}")]);
+        }
+        let mut c = c
+            .arg("--out")
+            .arg(d.join("render"))
+            .stdout(std::process::Stdio::piped())
+            .stderr(std::process::Stdio::piped())
+            .spawn()
+            .unwrap();
+        let s = wait_for(&mut c, 10.0);
+        let o = c.wait_with_output().unwrap();
+        assert!(s.is_some(), "{scene} {sets:?}: still rendering after 10 s");
+        let t = text(&o);
+        assert_eq!(o.status.code(), Some(2), "{scene} {sets:?}: {t}");
+        assert!(
+            t.contains(scene) && t.contains(key) && t.contains("work budget of 2^"),
+            "{t}"
+        );
+        let set: Vec<String> = sets.iter().map(|(k, v)| format!("{k}: {v}")).collect();
+        let case = format!("  - id: a\n    op: {op}.render\n    scene: SCENES/{scene}\n");
+        let m = manifest(
+            &d,
+            &format!("cases:\n{case}    set: {{{}}}\n", set.join(", ")),
+        );
+        let o = hpjudge().arg("check").arg(&m).output().unwrap();
+        assert_eq!(
+            o.status.code(),
+            Some(2),
+            "check {scene} {sets:?}: {}",
+            text(&o)
+        );
+        assert!(text(&o).contains("work budget of 2^"), "{}", text(&o));
+    }
+}

@@ -252,14 +252,9 @@ impl RenderParams {
         if self.spp == 0 {
             return Err(Error::invalid("spp", "must be >= 1"));
         }
-        let paths = self.width as u64 * self.height as u64 * self.spp as u64;
-        if paths > MAX_PATHS {
-            let why = format!(
-                "{} x {} pixels x {} spp = {paths} paths is over the work budget of 2^36 per render",
-                self.width, self.height, self.spp
-            );
-            return Err(Error::invalid("spp", why));
-        }
+        let (w, h, spp) = (self.width as u64, self.height as u64, self.spp as u64);
+        let work = [(w, "width"), (h, "height"), (spp, "spp")];
+        crate::budget::check_work("spp", &work, "paths per render", MAX_PATHS)?;
         // Dimensions of the deepest vertex must fit in u32.
         if self.max_bounces > 1 << 24 {
             return Err(Error::invalid(

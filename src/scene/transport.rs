@@ -4,7 +4,7 @@
 //! | --- | --- | --- |
 //! | `task` | what to trace (below) | required |
 //! | `integrator` | tier and step settings (below) | required |
-//! | `max_steps` | accepted steps per ray before it ends undecided | 1000000 |
+//! | `max_steps` | accepted steps per ray before it ends undecided; at most 2^30 (`MAX_RAY_STEPS`), rays x steps at most 2^40 (`MAX_PHOTON_STEPS`) | 1000000 |
 //! | `dump_rays` | ray indices (input order) whose polylines `(x, y, z, lambda)` per accepted step `transport.render` writes as `polylines.npy` (k, L, 4; padded with the last point) and `polyline_len.npy` | [] |
 //! | `research` | `{preset: validate}`: deterministic validation preset (see [`ResearchPreset`]); the op logs a one-line banner and reports the settings hash as counter `research_settings_hash` | off |
 //!
@@ -460,6 +460,16 @@ impl KerrImageSpec {
     }
 }
 
+/// The work budget of one transport render: rays x steps per ray (the
+/// `max_steps` cap, or a `steps` stop), 2^40 (1.1e12; about 9 hours at the
+/// 3.4e7 photon-steps per CPU-second of the RK4 lanes). The largest
+/// committed, 512 x 512 pixels x 100000 steps, is 2.6e10.
+pub const MAX_PHOTON_STEPS: u64 = 1 << 40;
+
+/// The most steps one ray may take: 2^30 (1.1e9; the suite's largest cap
+/// is 1e6). A `max_steps` or `steps` stop of 4e9 is refused, not traced.
+pub const MAX_RAY_STEPS: u64 = 1 << 30;
+
 /// A parsed transport scene.
 #[derive(Clone, Debug, Deserialize, PartialEq)]
 #[serde(deny_unknown_fields)]
@@ -549,9 +559,44 @@ impl TransportScene {
         Some(ResearchBanner { line, hash })
     }
 
+    /// Rays traced and the most steps each may take (a `steps` stop replaces
+    /// `max_steps`), refused over [`MAX_RAY_STEPS`] and [`MAX_PHOTON_STEPS`].
+    fn check_work(&self, max_steps: u64) -> Result<()> {
+        let (rays, key, steps) = match &self.task {
+            TaskSpec::Deflection {
+                impact_parameters,
+                repeat,
+                ..
+            } => (
+                impact_parameters.len() as u64 * *repeat as u64,
+                "max_steps",
+                max_steps,
+            ),
+            TaskSpec::Observer { angles_deg, .. } => {
+                (angles_deg.len() as u64, "max_steps", max_steps)
+            }
+            TaskSpec::Grin { rays, stop, .. } => match *stop {
+                StopSpec::Steps { n } => (rays.len() as u64, "task.stop.n", n),
+                _ => (rays.len() as u64, "max_steps", max_steps),
+            },
+            TaskSpec::KerrImage(k) => match (&k.rays, k.width, k.height) {
+                (Some(l), ..) => (l.len() as u64, "max_steps", max_steps),
+                (None, w, h) => {
+                    let px = w.unwrap_or(0) as u64 * h.unwrap_or(0) as u64;
+                    (px, "max_steps", max_steps)
+                }
+            },
+            TaskSpec::EllisImage(e) => (e.width as u64 * e.height as u64, "max_steps", max_steps),
+        };
+        crate::budget::check_work(key, &[(steps, "steps")], "steps per ray", MAX_RAY_STEPS)?;
+        let work = [(rays, "rays"), (steps, "steps")];
+        crate::budget::check_work(key, &work, "photon-steps per render", MAX_PHOTON_STEPS)
+    }
+
     /// The typed task and integration options in precision `F`.
     pub fn build<F: Real>(&self) -> Result<(Task<F>, Options<F>)> {
         let (integ, max_steps) = self.effective();
+        self.check_work(max_steps)?;
         let opt = Options {
             tier: integ.build()?,
             project: integ.project,

@@ -4,7 +4,7 @@
 //! | key | meaning | default |
 //! | --- | --- | --- |
 //! | `shape` | `{type: sphere, radius}` (centre-inside test), `{type: menger, level}`, `{type: boxes, boxes: [{min: [i, j, k], max: [i, j, k]}, ..]}` (inclusive voxel boxes) or `{type: mesh, path}` (an .obj or .ply file, relative to the scene file, placed as SCENES.md's bunny and surface-voxelised; an absent file is `not supported` (a skip) unless `CI=true`) | required |
-//! | `depth` | octree depth d: 2^d voxels per axis over [-1, 1]^3, 1..=22 | required |
+//! | `depth` | octree depth d: 2^d voxels per axis over [-1, 1]^3, 1..=22; the shape's surface cells at most 2^28 (`MAX_BUILD_CELLS`) | required |
 //! | `lod` | `{orig_size, dir_size}`: LOD cut when `orig_size + t dir_size` >= voxel size (world units) | off |
 //! | `max_iter` | cast iteration cap per ray | max(2^16, 16 * 2^depth) |
 //! | `contours` | `true`: intersect each surface voxel's contour slab (sphere only; octree only); SCENES.md outputs are defined without | `false` |
@@ -138,6 +138,56 @@ impl VoxelScene {
     }
 }
 
+/// The work budget of one octree build: leaf cells on the shape's surface
+/// (estimated before building: its area in voxel faces, or for the Menger
+/// sponge its 20^level solid voxels), 2^28 (2.7e8). Measured on a loaded
+/// 2-core machine: a depth-12 sphere of radius 0.8 (3.4e7 cells) builds in
+/// 2.3 s, the level-6 sponge at depth 12 (6.4e7) in 7.7 s, the level-7
+/// sponge (1.3e9) took over a minute, the bunny at depth 12 (3.3e7, the
+/// largest committed) voxelises in about 93 s; depth 22 would take days.
+pub const MAX_BUILD_CELLS: u64 = 1 << 28;
+
+/// Refuses a build over [`MAX_BUILD_CELLS`] surface cells (`key depth`).
+fn check_build(doc: &SceneDoc, cells: f64) -> Result<()> {
+    let work = [(cells.ceil().min(u64::MAX as f64) as u64, "surface cells")];
+    let at = format!("{} key `depth`", doc.at());
+    crate::budget::check_work(&at, &work, "cells per build", MAX_BUILD_CELLS)
+}
+
+/// Surface cells of a non-mesh shape at `depth` (see [`MAX_BUILD_CELLS`]):
+/// a sphere's area (its radius capped at the box's half-diagonal), each
+/// box's faces, the sponge's solid voxels.
+fn build_cells(shape: &ShapeSpec, depth: u32) -> f64 {
+    let n = (1u64 << depth.min(63)) as f64;
+    match shape {
+        ShapeSpec::Sphere { radius } => {
+            std::f64::consts::PI * radius.min(3f64.sqrt()).powi(2) * n * n
+        }
+        ShapeSpec::Menger { level } => 20f64.powi(*level as i32),
+        ShapeSpec::Boxes { boxes } => boxes
+            .iter()
+            .map(|b| {
+                let e = [0, 1, 2].map(|a| b.max[a].saturating_sub(b.min[a]) as f64 + 1.0);
+                2.0 * (e[0] * e[1] + e[1] * e[2] + e[2] * e[0])
+            })
+            .sum(),
+        ShapeSpec::Mesh { .. } => 0.0,
+    }
+}
+
+fn tri_area(t: &[[f64; 3]; 3]) -> f64 {
+    let (u, v) = (
+        [0, 1, 2].map(|a| t[1][a] - t[0][a]),
+        [0, 1, 2].map(|a| t[2][a] - t[0][a]),
+    );
+    let c = [
+        u[1] * v[2] - u[2] * v[1],
+        u[2] * v[0] - u[0] * v[2],
+        u[0] * v[1] - u[1] * v[0],
+    ];
+    0.5 * (c[0] * c[0] + c[1] * c[1] + c[2] * c[2]).sqrt()
+}
+
 /// Loads, places and voxelises the mesh at `path` (relative to the scene's folder).
 fn mesh_shape(doc: &SceneDoc, path: &str, depth: u32) -> Result<Shape> {
     let at = format!("{} key `shape.path`", doc.at());
@@ -156,6 +206,11 @@ fn mesh_shape(doc: &SceneDoc, path: &str, depth: u32) -> Result<Shape> {
         return Err(Error::NotSupported(why));
     }
     let mesh = Mesh::load(&full)?.placed()?;
+    let half = (1u64 << (depth - 1)) as f64;
+    check_build(
+        doc,
+        mesh.tris.iter().map(tri_area).sum::<f64>() * half * half,
+    )?;
     Ok(Shape::Mesh(Arc::new(voxelise(
         mesh,
         depth,
@@ -167,6 +222,7 @@ fn mesh_shape(doc: &SceneDoc, path: &str, depth: u32) -> Result<Shape> {
 pub fn parse(doc: &SceneDoc) -> Result<VoxelScene> {
     let (view, rest): (ViewSpec, VoxelsRest) = doc.parse_split(VIEW_KEYS)?;
     let at = doc.at();
+    let cells = build_cells(&rest.shape, rest.depth);
     let shape = match rest.shape {
         ShapeSpec::Sphere { radius } => Shape::Sphere { radius },
         ShapeSpec::Menger { level } => Shape::Menger { level },
@@ -192,6 +248,7 @@ pub fn parse(doc: &SceneDoc) -> Result<VoxelScene> {
     shape
         .validate(rest.depth)
         .map_err(|e| Error::invalid(at.clone(), e.to_string()))?;
+    check_build(doc, cells)?;
     let lod = match rest.lod {
         Some(l) => {
             if !(l.orig_size >= 0.0
