@@ -984,3 +984,53 @@ fn absurd_steps_depths_and_samples_are_refused_by_render_and_check_before_work()
         assert!(text(&o).contains("work budget of 2^"), "{}", text(&o));
     }
 }
+
+/// Case ids `-rf` and `--help`: the old binary refused `--filter -rf` as
+/// unknown flags (exit 2).
+#[test]
+fn dash_case_ids_run_filter_and_repro_into_their_own_out_folder() {
+    let d = tmp("dash").join("my dir");
+    std::fs::create_dir_all(&d).unwrap();
+    let body = "cases:\n  - id: -rf\n    op: selftest.nan_image\n    assert:\n      - no_nan_inf: {}\n  - id: --help\n    op: selftest.good\n    assert:\n      - no_nan_inf: {}\n";
+    let m = manifest(&d, body);
+    let o = hpjudge()
+        .arg("run")
+        .arg(&m)
+        .args(["--filter", "-rf", "--out"])
+        .arg(d.join("out"))
+        .output()
+        .unwrap();
+    let t = text(&o);
+    assert_eq!(o.status.code(), Some(1), "{t}");
+    assert!(t.contains("0 passed, 1 failed"), "{t}");
+    let board = std::fs::read(d.join("out/scoreboard.json")).unwrap();
+    let line = t
+        .lines()
+        .find(|l| l.trim_start().starts_with("hpjudge run "))
+        .expect(&t);
+    assert!(
+        line.contains("'") && line.contains("--filter=-rf"),
+        "{line}"
+    );
+    let bin = tmp("dashbin");
+    std::os::unix::fs::symlink(exe(), bin.join("hpjudge")).unwrap();
+    let path = format!(
+        "{}:{}",
+        bin.display(),
+        std::env::var("PATH").unwrap_or_default()
+    );
+    let r = Command::new("sh")
+        .args(["-c", line.trim()])
+        .env("PATH", path)
+        .env_remove("CI")
+        .output()
+        .unwrap();
+    assert_eq!(r.status.code(), Some(1), "{}", text(&r));
+    assert_eq!(
+        std::fs::read(d.join("out/scoreboard.json")).unwrap(),
+        board,
+        "repro overwrote the scoreboard"
+    );
+    let rb = std::fs::read_to_string(d.join("out/repro/-rf-cpu/scoreboard.json")).unwrap();
+    assert!(rb.contains("\"-rf\"") && !rb.contains("--help"), "{rb}");
+}

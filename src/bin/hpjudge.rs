@@ -86,7 +86,7 @@ struct RunArgs {
     #[arg(long, default_value = "out")]
     out: PathBuf,
     /// Only cases whose id contains this.
-    #[arg(long)]
+    #[arg(long, allow_hyphen_values = true)]
     filter: Option<String>,
     /// Backends to run.
     #[arg(long, value_enum, default_value = "all")]
@@ -202,7 +202,7 @@ struct PerfArgs {
     scenarios: PathBuf,
     #[arg(long, default_value = "out")]
     out: PathBuf,
-    #[arg(long)]
+    #[arg(long, allow_hyphen_values = true)]
     filter: Option<String>,
     #[arg(long)]
     json: bool,
@@ -228,7 +228,7 @@ struct CompareArgs {
 struct BlessArgs {
     #[arg(default_value = "manifest.yaml")]
     manifest: PathBuf,
-    #[arg(long)]
+    #[arg(long, allow_hyphen_values = true)]
     filter: Option<String>,
     #[arg(long)]
     profile: Option<String>,
