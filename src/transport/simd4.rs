@@ -41,10 +41,9 @@ pub trait Lanes:
     fn gt(self, o: Self) -> Self;
     /// `a` where `mask`, else `b`.
     fn select(mask: Self, a: Self, b: Self) -> Self;
-    /// Lane `i` true when `self` is finite there (`x - x == 0`).
+    /// Lane `i` true when `self` is finite there.
     fn finite(self) -> [bool; 4] {
-        let z = (self - self).store();
-        z.map(|v| v == 0.0)
+        self.store().map(f64::is_finite)
     }
 }
 
