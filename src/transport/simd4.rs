@@ -13,6 +13,9 @@
 //! at most 1 ulp (unit test below). The scalar path (`f64::sin_cos`, no
 //! FMA) is the referee the lane results are held to.
 
+// fdlibm's constants below keep their digits as published.
+#![allow(clippy::excessive_precision)]
+
 use std::ops::{Add, Div, Mul, Neg, Sub};
 
 /// Four f64 lanes with the arithmetic the lane kernels use. Masks are lane
