@@ -866,6 +866,24 @@ fn render(scene: &str, args: &[&str]) -> Output {
         .unwrap()
 }
 
+/// `hpjudge render SCENE args...`, failing the test when it is still
+/// rendering after 10 s (killed then).
+fn render_within_10_s(scene: &str, args: &[&str]) -> Output {
+    let mut c = hpjudge()
+        .args(["render", scene])
+        .args(args)
+        .arg("--out")
+        .arg(tmp("render10"))
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    let s = wait_for(&mut c, 10.0);
+    let o = c.wait_with_output().unwrap();
+    assert!(s.is_some(), "{scene} {args:?}: still rendering after 10 s");
+    o
+}
+
 #[test]
 fn path_tracer_refuses_f64_rays_grad_from_and_absurd_spp_before_work() {
     let cornell = "TESTS/scenes/cornell_box.yaml";
@@ -882,16 +900,7 @@ fn path_tracer_refuses_f64_rays_grad_from_and_absurd_spp_before_work() {
         assert_ne!(o.status.code(), Some(0), "{args:?}: {}", text(&o));
         assert!(text(&o).contains(expect), "{args:?}: {}", text(&o));
     }
-    let mut c = hpjudge()
-        .args(["render", cornell, "--set", "spp=4294967295", "--out"])
-        .arg(tmp("spp"))
-        .stdout(std::process::Stdio::piped())
-        .stderr(std::process::Stdio::piped())
-        .spawn()
-        .unwrap();
-    let s = wait_for(&mut c, 10.0);
-    let o = c.wait_with_output().unwrap();
-    assert!(s.is_some(), "spp=4294967295 still rendering after 10 s");
+    let o = render_within_10_s(cornell, &["--set", "spp=4294967295"]);
     assert_eq!(o.status.code(), Some(2), "{}", text(&o));
     assert!(
         text(&o).contains("spp") && text(&o).contains("work budget"),
@@ -947,21 +956,9 @@ const ABSURD_WORK: [Work; 5] = [
 fn absurd_steps_depths_and_samples_are_refused_by_render_and_check_before_work() {
     let d = tmp("work");
     for (op, scene, sets, key) in ABSURD_WORK {
-        let mut c = hpjudge();
-        c.args(["render", &format!("TESTS/scenes/{scene}")]);
-        for (k, v) in sets {
-            c.args(["--set", &format!("{k}={v}")]);
-        }
-        let mut c = c
-            .arg("--out")
-            .arg(d.join("render"))
-            .stdout(std::process::Stdio::piped())
-            .stderr(std::process::Stdio::piped())
-            .spawn()
-            .unwrap();
-        let s = wait_for(&mut c, 10.0);
-        let o = c.wait_with_output().unwrap();
-        assert!(s.is_some(), "{scene} {sets:?}: still rendering after 10 s");
+        let args: Vec<String> = sets.iter().map(|(k, v)| format!("--set={k}={v}")).collect();
+        let args: Vec<&str> = args.iter().map(String::as_str).collect();
+        let o = render_within_10_s(&format!("TESTS/scenes/{scene}"), &args);
         let t = text(&o);
         assert_eq!(o.status.code(), Some(2), "{scene} {sets:?}: {t}");
         assert!(
