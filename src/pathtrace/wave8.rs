@@ -20,7 +20,7 @@ use glam::Vec3A;
 use super::bsdf8::{self, Frame8, Mat8, GLASS, LIGHT};
 use super::integrator::{dims, PathRng, Scene};
 use super::lanes::{Column, F8, LANES, M8, U8, V8};
-use super::shapes::{Shape, OFFSET_REL};
+use super::shapes::{Quad, Shape, OFFSET_REL};
 use super::soa8::Rays8;
 use crate::pathtrace::bsdf::Material;
 
@@ -35,17 +35,6 @@ struct Row {
     kind: u32,
     rgb: [f32; 3],
     a: f32,
-}
-
-/// One light quad: corner, edges, normal, area and radiance.
-#[derive(Clone, Copy, Debug, Default)]
-struct LightRow {
-    corner: [f32; 3],
-    u: [f32; 3],
-    v: [f32; 3],
-    normal: [f32; 3],
-    area: f32,
-    radiance: [f32; 3],
 }
 
 /// The scene's shading rows as columns, read per lane by shape index.
@@ -87,15 +76,16 @@ struct Lights {
 }
 
 impl Lights {
-    fn new(rows: &[LightRow]) -> Lights {
-        let f = |g: &dyn Fn(&LightRow) -> f32| Column::of_f32(rows.iter().map(g));
+    /// The columns of the light quads and their radiances.
+    fn new(quads: &[(Quad, Vec3A)]) -> Lights {
+        let f = |g: &dyn Fn(&(Quad, Vec3A)) -> f32| Column::of_f32(quads.iter().map(g));
         Lights {
-            corner: [0, 1, 2].map(|a| f(&|r| r.corner[a])),
-            u: [0, 1, 2].map(|a| f(&|r| r.u[a])),
-            v: [0, 1, 2].map(|a| f(&|r| r.v[a])),
-            normal: [0, 1, 2].map(|a| f(&|r| r.normal[a])),
-            area: f(&|r| r.area),
-            radiance: [0, 1, 2].map(|a| f(&|r| r.radiance[a])),
+            corner: [0, 1, 2].map(|a| f(&|(q, _)| q.corner[a])),
+            u: [0, 1, 2].map(|a| f(&|(q, _)| q.u[a])),
+            v: [0, 1, 2].map(|a| f(&|(q, _)| q.v[a])),
+            normal: [0, 1, 2].map(|a| f(&|(q, _)| q.normal()[a])),
+            area: f(&|(q, _)| q.area()),
+            radiance: [0, 1, 2].map(|a| f(&|(_, r)| r[a])),
         }
     }
 }
@@ -145,19 +135,12 @@ impl Tables {
                 r
             })
             .collect();
-        let lights: Vec<LightRow> = scene
+        let lights: Vec<(Quad, Vec3A)> = scene
             .lights()
             .iter()
             .filter_map(
                 |&i| match (scene.shapes()[i as usize], scene.material(i as usize)) {
-                    (Shape::Quad(q), Material::Emitter { radiance }) => Some(LightRow {
-                        corner: q.corner.to_array(),
-                        u: q.u.to_array(),
-                        v: q.v.to_array(),
-                        normal: q.normal().to_array(),
-                        area: q.area(),
-                        radiance: radiance.to_array(),
-                    }),
+                    (Shape::Quad(q), Material::Emitter { radiance }) => Some((q, radiance)),
                     _ => None,
                 },
             )
