@@ -371,6 +371,79 @@ impl V8 {
     }
 }
 
+/// A column of a scene table (one `u32` per row: f32 bits or a code),
+/// read per lane by row index. Stored in chunks of eight so that AVX2 reads
+/// a chunk with one lane permute (`vpermd`) instead of eight scalar loads
+/// and stores (which also stall the next eight-lane load of the result).
+#[derive(Clone, Debug, Default)]
+pub struct Column {
+    chunks: Vec<U8>,
+}
+
+impl Column {
+    /// The column of `values`, row `i` at index `i`.
+    pub fn new(values: impl IntoIterator<Item = u32>) -> Column {
+        let v: Vec<u32> = values.into_iter().collect();
+        let chunks = v
+            .chunks(LANES)
+            .map(|c| {
+                let mut u = [0u32; LANES];
+                u[..c.len()].copy_from_slice(c);
+                U8(u)
+            })
+            .collect();
+        Column { chunks }
+    }
+
+    /// The f32 column of `values`.
+    pub fn of_f32(values: impl IntoIterator<Item = f32>) -> Column {
+        Column::new(values.into_iter().map(f32::to_bits))
+    }
+
+    /// Row `idx` per lane; an index past the rows gives some row's value
+    /// (for lanes whose result is masked off), never a fault.
+    #[inline(always)]
+    pub fn get(&self, idx: U8, avx2: bool) -> U8 {
+        #[cfg(target_arch = "x86_64")]
+        if avx2 {
+            // SAFETY: the caller passes `avx2` only where AVX2 was detected.
+            return unsafe { self.get_avx2(idx) };
+        }
+        let _ = avx2;
+        let n = self.chunks.len() * LANES;
+        U8(map(idx.0, |i| {
+            let i = (i as usize).min(n - 1);
+            self.chunks[i / LANES].0[i % LANES]
+        }))
+    }
+
+    /// [`Column::get`] as f32 lanes.
+    #[inline(always)]
+    pub fn get_f(&self, idx: U8, avx2: bool) -> F8 {
+        F8(map(self.get(idx, avx2).0, f32::from_bits))
+    }
+
+    /// One permute per chunk, chunk chosen by `idx / 8`.
+    #[cfg(target_arch = "x86_64")]
+    #[inline]
+    #[target_feature(enable = "avx2")]
+    unsafe fn get_avx2(&self, idx: U8) -> U8 {
+        use std::arch::x86_64::*;
+        let i = _mm256_loadu_si256(idx.0.as_ptr() as *const __m256i);
+        let hi = _mm256_srli_epi32::<3>(i);
+        let ld = |c: &U8| _mm256_loadu_si256(c.0.as_ptr() as *const __m256i);
+        let mut r = _mm256_permutevar8x32_epi32(ld(&self.chunks[0]), i);
+        for (c, chunk) in self.chunks.iter().enumerate().skip(1) {
+            let v = _mm256_permutevar8x32_epi32(ld(chunk), i);
+            let m = _mm256_cmpeq_epi32(hi, _mm256_set1_epi32(c as i32));
+            r = _mm256_blendv_epi8(r, v, m);
+        }
+        let mut out = U8::default();
+        _mm256_storeu_si256(out.0.as_mut_ptr() as *mut __m256i, r);
+        out
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -392,6 +465,31 @@ mod tests {
             assert_eq!(va.dot(vb).0[5], a.dot(b));
             assert_eq!(va.length().0[0], a.length());
             assert_eq!(va.abs().max_element().0[7], a.abs().max_element());
+        }
+    }
+
+    /// A column read by lane indices returns each lane's row, with AVX2
+    /// (when the CPU has it) and without, for tables of 1 to 20 rows.
+    #[test]
+    fn columns_return_the_indexed_rows() {
+        let avx2 = {
+            #[cfg(target_arch = "x86_64")]
+            {
+                std::arch::is_x86_feature_detected!("avx2")
+            }
+            #[cfg(not(target_arch = "x86_64"))]
+            {
+                false
+            }
+        };
+        for n in 1..=20u32 {
+            let col = Column::new((0..n).map(|i| 1000 + 7 * i));
+            for start in 0..n {
+                let idx = U8(std::array::from_fn(|k| (start + 3 * k as u32) % n));
+                let want = U8(idx.0.map(|i| 1000 + 7 * i));
+                assert_eq!(col.get(idx, false), want);
+                assert_eq!(col.get(idx, avx2), want);
+            }
         }
     }
 

@@ -351,25 +351,23 @@ mod avx2 {
     /// NaN in both, which no test passes.
     #[inline]
     #[target_feature(enable = "avx2")]
-    fn quad_axis(
-        ax: [usize; 3],
-        c: V3,
-        ua: V3,
-        vb: V3,
+    fn quad_axis<const K: usize, const I: usize, const J: usize>(
+        s: &Soa8,
+        q: usize,
         o: V3,
         d: V3,
         tb: __m256,
     ) -> (__m256, __m256) {
-        let [k, i, j] = ax;
         let zero = _mm256_setzero_ps();
-        let t = _mm256_div_ps(sub(c[k], o[k]), d[k]);
-        let hi = sub(add(o[i], mul(t, d[i])), c[i]);
-        let hj = sub(add(o[j], mul(t, d[j])), c[j]);
+        let g = |v: &[f32]| _mm256_set1_ps(v[q]);
+        let t = _mm256_div_ps(sub(g(&s.qc[K]), o[K]), d[K]);
+        let hi = sub(add(o[I], mul(t, d[I])), g(&s.qc[I]));
+        let hj = sub(add(o[J], mul(t, d[J])), g(&s.qc[J]));
         let ok = all4(
             _mm256_cmp_ps::<_CMP_GT_OQ>(t, zero),
             _mm256_cmp_ps::<_CMP_LT_OQ>(t, tb),
-            unit(mul(hi, ua[i])),
-            unit(mul(hj, vb[j])),
+            unit(mul(hi, g(&s.qua[I]))),
+            unit(mul(hj, g(&s.qvb[J]))),
         );
         (t, ok)
     }
@@ -408,13 +406,20 @@ mod avx2 {
         for (shape, which) in shapes {
             let (t, ok) = match which {
                 Err(k) => sphere(splat3(&s.sc, k), _mm256_set1_ps(s.sr2[k]), o, d, tbest),
-                Ok(k) => {
-                    let [c, n, ua, vb] = [&s.qc, &s.qn, &s.qua, &s.qvb].map(|v| splat3(v, k));
-                    match s.qaxis[k] {
-                        Some(ax) => quad_axis(ax, c, ua, vb, o, d, tbest),
-                        None => quad([c, n, ua, vb], o, d, tbest),
+                // The axis order as constants, so that the lanes of `o`
+                // and `d` stay in registers.
+                Ok(k) => match s.qaxis[k] {
+                    Some([0, 1, 2]) => quad_axis::<0, 1, 2>(s, k, o, d, tbest),
+                    Some([0, 2, 1]) => quad_axis::<0, 2, 1>(s, k, o, d, tbest),
+                    Some([1, 0, 2]) => quad_axis::<1, 0, 2>(s, k, o, d, tbest),
+                    Some([1, 2, 0]) => quad_axis::<1, 2, 0>(s, k, o, d, tbest),
+                    Some([2, 0, 1]) => quad_axis::<2, 0, 1>(s, k, o, d, tbest),
+                    Some([2, 1, 0]) => quad_axis::<2, 1, 0>(s, k, o, d, tbest),
+                    _ => {
+                        let cnab = [&s.qc, &s.qn, &s.qua, &s.qvb].map(|v| splat3(v, k));
+                        quad(cnab, o, d, tbest)
                     }
-                }
+                },
             };
             let ok = _mm256_and_ps(ok, actv);
             tbest = _mm256_blendv_ps(tbest, t, ok);

@@ -19,8 +19,8 @@ use glam::Vec3A;
 
 use super::bsdf8::{self, Frame8, Mat8, GLASS, LIGHT};
 use super::integrator::{dims, PathRng, Scene};
-use super::lanes::{F8, LANES, M8, U8, V8};
-use super::shapes::{Shape, OFFSET_REL};
+use super::lanes::{Column, F8, LANES, M8, U8, V8};
+use super::shapes::{Quad, Shape, OFFSET_REL};
 use super::soa8::Rays8;
 use crate::pathtrace::bsdf::Material;
 
@@ -37,27 +37,80 @@ struct Row {
     a: f32,
 }
 
-/// One light quad: corner, edges, normal, area and radiance.
-#[derive(Clone, Copy, Debug, Default)]
-struct LightRow {
-    corner: [f32; 3],
-    u: [f32; 3],
-    v: [f32; 3],
-    normal: [f32; 3],
-    area: f32,
-    radiance: [f32; 3],
+/// The scene's shading rows as columns, read per lane by shape index.
+struct Rows {
+    sphere: Column,
+    centre: [Column; 3],
+    radius: Column,
+    normal: [Column; 3],
+    area: Column,
+    kind: Column,
+    rgb: [Column; 3],
+    a: Column,
 }
 
-/// The scene as rows for lane gathers.
+impl Rows {
+    fn new(rows: &[Row]) -> Rows {
+        let f = |g: &dyn Fn(&Row) -> f32| Column::of_f32(rows.iter().map(g));
+        Rows {
+            sphere: Column::new(rows.iter().map(|r| if r.sphere { u32::MAX } else { 0 })),
+            centre: [0, 1, 2].map(|a| f(&|r| r.centre[a])),
+            radius: f(&|r| r.radius),
+            normal: [0, 1, 2].map(|a| f(&|r| r.normal[a])),
+            area: f(&|r| r.area),
+            kind: Column::new(rows.iter().map(|r| r.kind)),
+            rgb: [0, 1, 2].map(|a| f(&|r| r.rgb[a])),
+            a: f(&|r| r.a),
+        }
+    }
+}
+
+/// The light quads as columns, read per lane by light index.
+struct Lights {
+    corner: [Column; 3],
+    u: [Column; 3],
+    v: [Column; 3],
+    normal: [Column; 3],
+    area: Column,
+    radiance: [Column; 3],
+}
+
+impl Lights {
+    /// The columns of the light quads and their radiances.
+    fn new(quads: &[(Quad, Vec3A)]) -> Lights {
+        let f = |g: &dyn Fn(&(Quad, Vec3A)) -> f32| Column::of_f32(quads.iter().map(g));
+        Lights {
+            corner: [0, 1, 2].map(|a| f(&|(q, _)| q.corner[a])),
+            u: [0, 1, 2].map(|a| f(&|(q, _)| q.u[a])),
+            v: [0, 1, 2].map(|a| f(&|(q, _)| q.v[a])),
+            normal: [0, 1, 2].map(|a| f(&|(q, _)| q.normal()[a])),
+            area: f(&|(q, _)| q.area()),
+            radiance: [0, 1, 2].map(|a| f(&|(_, r)| r[a])),
+        }
+    }
+}
+
+/// Three columns read at the same lane indices.
+#[inline(always)]
+fn get3(c: &[Column; 3], idx: U8, avx2: bool) -> V8 {
+    V8::new(
+        c[0].get_f(idx, avx2),
+        c[1].get_f(idx, avx2),
+        c[2].get_f(idx, avx2),
+    )
+}
+
+/// The scene as columns for lane reads.
 struct Tables {
-    rows: Vec<Row>,
-    lights: Vec<LightRow>,
+    rows: Rows,
+    lights: Lights,
+    nl: usize,
     env: [f32; 3],
 }
 
 impl Tables {
     fn new(scene: &Scene) -> Tables {
-        let rows = (0..scene.shapes().len())
+        let rows: Vec<Row> = (0..scene.shapes().len())
             .map(|i| {
                 let (kind, rgb, a) = match scene.material(i) {
                     Material::Lambertian { albedo } => (bsdf8::LAMBERT, albedo, 0.0),
@@ -82,26 +135,20 @@ impl Tables {
                 r
             })
             .collect();
-        let lights = scene
+        let lights: Vec<(Quad, Vec3A)> = scene
             .lights()
             .iter()
             .filter_map(
                 |&i| match (scene.shapes()[i as usize], scene.material(i as usize)) {
-                    (Shape::Quad(q), Material::Emitter { radiance }) => Some(LightRow {
-                        corner: q.corner.to_array(),
-                        u: q.u.to_array(),
-                        v: q.v.to_array(),
-                        normal: q.normal().to_array(),
-                        area: q.area(),
-                        radiance: radiance.to_array(),
-                    }),
+                    (Shape::Quad(q), Material::Emitter { radiance }) => Some((q, radiance)),
                     _ => None,
                 },
             )
             .collect();
         Tables {
-            rows,
-            lights,
+            rows: Rows::new(&rows),
+            lights: Lights::new(&lights),
+            nl: lights.len(),
             env: scene.environment().to_array(),
         }
     }
@@ -171,24 +218,20 @@ fn light_sample(
     (p, n, fr, wo): (V8, V8, &Frame8, V8),
     mat: &Mat8,
     (key, base): (U8, U8),
+    avx2: bool,
 ) -> (M8, V8, V8, F8, V8) {
-    let nl = tab.lights.len();
+    let nl = tab.nl;
     let nlf = F8::splat(nl as f32);
     let u = key.rand(base + U8::splat(dims::LIGHT_CHOICE));
     let pick = (u * nlf).to_i32().min(U8::splat(nl as u32 - 1));
-    let (mut c, mut eu, mut ev, mut ln) =
-        (V8::default(), V8::default(), V8::default(), V8::default());
-    let (mut area, mut rad) = (F8::default(), V8::default());
-    for k in 0..LANES {
-        // One light (the Cornell box): every lane reads row 0.
-        let r = &tab.lights[if nl == 1 { 0 } else { pick.0[k] as usize }];
-        c.set_lane(k, r.corner);
-        eu.set_lane(k, r.u);
-        ev.set_lane(k, r.v);
-        ln.set_lane(k, r.normal);
-        area.0[k] = r.area;
-        rad.set_lane(k, r.radiance);
-    }
+    let lt = &tab.lights;
+    let (c, eu, ev, ln) = (
+        get3(&lt.corner, pick, avx2),
+        get3(&lt.u, pick, avx2),
+        get3(&lt.v, pick, avx2),
+        get3(&lt.normal, pick, avx2),
+    );
+    let (area, rad) = (lt.area.get_f(pick, avx2), get3(&lt.radiance, pick, avx2));
     let ua = key.rand(base + U8::splat(dims::LIGHT_U));
     let vb = key.rand(base + U8::splat(dims::LIGHT_V));
     let x = c + eu.scale(ua) + ev.scale(vb);
@@ -224,7 +267,7 @@ pub fn trace_paths_wave8(
         unsafe { run_avx2(scene, &tab, &start, (max_bounces, rr_depth), out) };
         return;
     }
-    run(scene, &tab, &start, (max_bounces, rr_depth), out)
+    run::<false, _>(scene, &tab, &start, (max_bounces, rr_depth), out)
 }
 
 /// [`run`] compiled for AVX2 + FMA.
@@ -240,12 +283,13 @@ unsafe fn run_avx2<F: Fn(usize) -> (Vec3A, Vec3A, PathRng)>(
     limits: (u32, u32),
     out: &mut [Vec3A],
 ) {
-    run(scene, tab, start, limits, out)
+    run::<true, F>(scene, tab, start, limits, out)
 }
 
-/// The wavefront loop: refill, intersect, shade, shadow-test, scatter.
+/// The wavefront loop: refill, intersect, shade, shadow-test, scatter;
+/// `AVX2`: table reads by lane permutes (only where AVX2 was detected).
 #[inline(always)]
-fn run<F: Fn(usize) -> (Vec3A, Vec3A, PathRng)>(
+fn run<const AVX2: bool, F: Fn(usize) -> (Vec3A, Vec3A, PathRng)>(
     scene: &Scene,
     tab: &Tables,
     start: &F,
@@ -257,7 +301,7 @@ fn run<F: Fn(usize) -> (Vec3A, Vec3A, PathRng)>(
     let mut job = [0usize; LANES];
     let (mut next, mut active) = (0usize, 0u8);
     let (zero, one) = (F8::splat(0.0), F8::splat(1.0));
-    let nlf = F8::splat(tab.lights.len() as f32);
+    let nlf = F8::splat(tab.nl as f32);
     loop {
         for (k, j) in job.iter_mut().enumerate() {
             if active & (1 << k) == 0 && next < out.len() {
@@ -276,26 +320,17 @@ fn run<F: Fn(usize) -> (Vec3A, Vec3A, PathRng)>(
         let hit = act & !U8(id).eq(U8::splat(u32::MAX));
         let miss = act & !hit;
         s.l = miss.select_v(s.l + s.beta * V8::splat(tab.env), s.l);
-        // Gather the shapes and materials that the lanes hit.
-        let (mut sph, mut c, mut rad, mut qn, mut area) = (
-            M8::default(),
-            V8::default(),
-            F8::default(),
-            V8::default(),
-            F8::default(),
-        );
-        let mut mat = Mat8::default();
-        for k in 0..LANES {
-            let r = &tab.rows[if id[k] == u32::MAX { 0 } else { id[k] as usize }];
-            sph.0[k] = if r.sphere { u32::MAX } else { 0 };
-            c.set_lane(k, r.centre);
-            rad.0[k] = r.radius;
-            qn.set_lane(k, r.normal);
-            area.0[k] = r.area;
-            mat.kind.0[k] = r.kind;
-            mat.rgb.set_lane(k, r.rgb);
-            mat.a.0[k] = r.a;
-        }
+        // The shapes and materials that the lanes hit (row 0 on a miss).
+        let idx = U8(id);
+        let rw = &tab.rows;
+        let sph = M8(rw.sphere.get(idx, AVX2).0);
+        let (c, rad) = (get3(&rw.centre, idx, AVX2), rw.radius.get_f(idx, AVX2));
+        let (qn, area) = (get3(&rw.normal, idx, AVX2), rw.area.get_f(idx, AVX2));
+        let mat = Mat8 {
+            kind: rw.kind.get(idx, AVX2),
+            rgb: get3(&rw.rgb, idx, AVX2),
+            a: rw.a.get_f(idx, AVX2),
+        };
         // Surface point and normal (`Shape::surface`), frame, wo.
         let t = F8(t);
         let p = s.o + s.d.scale(t);
@@ -316,9 +351,9 @@ fn run<F: Fn(usize) -> (Vec3A, Vec3A, PathRng)>(
         let base = U8::splat(dims::FIRST_VERTEX) + U8::splat(dims::STRIDE).mul(s.bounces);
         // Light sampling and the eight shadow rays.
         let nee = vert & !mat.is(GLASS);
-        if !tab.lights.is_empty() && nee.any() {
+        if tab.nl > 0 && nee.any() {
             let (ok, so, swi, tmax, value) =
-                light_sample(tab, nee, (p, n, &fr, wo), &mat, (s.key, base));
+                light_sample(tab, nee, (p, n, &fr, wo), &mat, (s.key, base), AVX2);
             let shadow = Rays8 {
                 o: [so.x.0, so.y.0, so.z.0],
                 d: [swi.x.0, swi.y.0, swi.z.0],
@@ -332,14 +367,15 @@ fn run<F: Fn(usize) -> (Vec3A, Vec3A, PathRng)>(
             s.l = nee.select_v(s.l + s.beta * add, s.l);
         }
         // BSDF sampling (`PathState::scatter`) and Russian roulette.
-        let r = |d: u32| s.key.rand(base + U8::splat(d));
+        let key = s.key;
+        let r = |d: u32| base + U8::splat(d);
         let bs = bsdf8::sample(
             &mat,
             vert,
             wo,
-            r(dims::LOBE),
-            r(dims::BSDF_U),
-            r(dims::BSDF_V),
+            key.rand(r(dims::LOBE)),
+            key.rand(r(dims::BSDF_U)),
+            key.rand(r(dims::BSDF_V)),
         );
         let go = vert & bs.ok;
         s.beta = go.select_v(s.beta * bs.weight, s.beta);
@@ -352,7 +388,7 @@ fn run<F: Fn(usize) -> (Vec3A, Vec3A, PathRng)>(
         s.bounces = go.select_u(s.bounces + U8::splat(1), s.bounces);
         let rr = go & s.bounces.ge(U8::splat(rr_depth));
         let q = (s.beta.scale(s.eta2)).max_element().min(F8::splat(0.95));
-        let live = rr & r(dims::ROULETTE).lt(q);
+        let live = rr & key.rand(r(dims::ROULETTE)).lt(q);
         s.beta = live.select_v(s.beta.div(q), s.beta);
         let ended = (act & !go) | (rr & !live);
         let bits = ended.bits();
@@ -390,7 +426,7 @@ mod tests {
         };
         let (mut a, mut b) = (vec![Vec3A::ZERO; 448], vec![Vec3A::ZERO; 448]);
         trace_paths_wave8(&scene, start, 64, 2, &mut a);
-        run(&scene, &Tables::new(&scene), &start, (64, 2), &mut b);
+        run::<false, _>(&scene, &Tables::new(&scene), &start, (64, 2), &mut b);
         assert_eq!(a, b);
         assert!(a.iter().any(|x| x.x > 0.0));
     }
