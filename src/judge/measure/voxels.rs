@@ -285,6 +285,10 @@ pub fn cpu_vs_gpu(
                         &format!("{sname}_{set}_{pname}_differing_rays"),
                         differing(&res[0], &res[k]) as f64,
                     );
+                    out.metric(
+                        &format!("{sname}_{set}_{pname}_mean_iters"),
+                        mean(res[k].iters.iter().map(|&i| i as f64)),
+                    );
                 }
             }
             out.metric(
