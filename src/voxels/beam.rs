@@ -12,10 +12,12 @@
 //! its distance from the origin, `t |d|`, is at least that box's distance.
 //! The walk prunes only boxes that are empty, miss the cone (bounding-sphere
 //! test) or lie farther than the best box found. The start is pulled back
-//! by [`MARGIN`] (relative) so the cast begins strictly in the empty space
-//! before its first solid voxel, and it then makes the same decisions as
-//! the cast from `near` from that voxel on: same `hit`, `t`, `leaf`,
-//! `normal` (bit for bit; fewer iterations). Runs with differing origins,
+//! by [`MARGIN`] (relative) and by a bound on the rounding of the cast's
+//! plane times ([`plane_time_error`]), so the cast begins strictly in the
+//! empty space before its first solid voxel even as its own f32 arithmetic
+//! sees it, and it then makes the same decisions as the cast from `near`
+//! from that voxel on: same `hit`, `t`, `leaf`, `normal` (bit for bit;
+//! fewer iterations). Runs with differing origins,
 //! wider cones than [`MAX_HALF_ANGLE`], or an LOD cut (whose stop voxel
 //! need not hold solid at the ray) are cast from `near` unchanged.
 //! Referee: the per-ray cast (`voxel_beam_*` cases, unit tests below).
@@ -149,17 +151,35 @@ pub fn start_distance<A: Addressing>(nodes: &[u32], depth: u32, cone: &Cone) -> 
     best
 }
 
-/// `p` with `near` raised to the start of ray `d` for a run whose start
-/// distance is `dist` (pulled back by [`MARGIN`]); `p` itself when that is
-/// not beyond `near`.
-pub fn beam_params<F: Real>(p: &CastParams, d: [F; 3], dist: f64) -> CastParams {
+/// `p` with `near` raised to the start of ray `(o, d)` for a run whose start
+/// distance is `dist`: pulled back by [`MARGIN`] and by [`plane_time_error`]
+/// (so the cast's own rounded plane times cannot put the start past the
+/// hit voxel's entry); `p` itself when that is not beyond `near`.
+pub fn beam_params<F: CastReal>(p: &CastParams, o: [F; 3], d: [F; 3], dist: f64) -> CastParams {
     let len = dot(d.map(|x| x.f64()), d.map(|x| x.f64())).sqrt();
-    let s = dist / len * (1.0 - MARGIN);
+    let s = dist / len * (1.0 - MARGIN) - plane_time_error(o, d);
     if s.is_finite() && s > p.near {
         CastParams { near: s, ..*p }
     } else {
         *p
     }
+}
+
+/// A bound on the rounding error of the cast's plane times for ray `(o, d)`
+/// in precision `F`: each is `x * coef_a - bias_a` with `x` in [1, 2],
+/// `coef_a = 1 / |dir_a|` (`dir = d / 2`, clamped to `2^EPS_LOG2` as the cast
+/// does) and `|bias_a| <= coef_a (|o_a / 2 + 1.5| + 3)`, three roundings of
+/// half an ulp each: at most `2^EPS_LOG2 * 2 coef_a (|o_a / 2 + 1.5| + 5)`,
+/// doubled here for margin. A grazing axis (tiny `dir_a`) makes it large and
+/// the start falls back to `near`.
+pub fn plane_time_error<F: CastReal>(o: [F; 3], d: [F; 3]) -> f64 {
+    let eps = 2f64.powi(F::EPS_LOG2);
+    (0..3)
+        .map(|a| {
+            let dir = (0.5 * d[a].f64().abs()).max(eps);
+            4.0 * eps / dir * ((0.5 * o[a].f64() + 1.5).abs() + 5.0)
+        })
+        .fold(0.0, f64::max)
 }
 
 /// The start distance of each run of `RUN` rays (`None`: cast from `near`).
@@ -193,7 +213,7 @@ pub fn cast_all_beam<F: CastReal, A: Addressing>(
     let starts = run_starts::<F, A>(nodes, depth, o, d, p);
     let res: Vec<CastHit<F>> = par_collect("voxels.cast_beam", o.len(), |i| {
         let q = match starts[i / RUN] {
-            Some(dist) => beam_params(p, d[i], dist),
+            Some(dist) => beam_params(p, o[i], d[i], dist),
             None => *p,
         };
         F::cast_sse::<A>(nodes, depth, o[i], d[i], &q)
@@ -233,35 +253,44 @@ mod tests {
         }
     }
 
+    fn bound_holds<F: CastReal>(s: &Shape, depth: u32) {
+        let t = build(s, depth, &MemBudget::fixed(1 << 30)).unwrap();
+        let b = camera_rays::<F>(96);
+        let p = b.params(None, 1 << 16);
+        let exact = cast_all::<F>(&t, &b.o, &b.d, &p);
+        let starts = run_starts::<F, Relative>(&t.nodes, depth, &b.o, &b.d, &p);
+        let (mut raised, mut hits) = (0, 0);
+        for i in 0..b.o.len() {
+            let dist = starts[i / RUN].expect("camera runs share an origin");
+            let q = beam_params(&p, b.o[i], b.d[i], dist);
+            raised += (q.near > p.near) as u32;
+            if exact.hit[i] == 1 {
+                hits += 1;
+                let th = exact.t[i].f64();
+                assert!(q.near < th, "{s:?} ray {i}: {} >= {th}", q.near);
+            }
+        }
+        assert!(hits > 200 && raised >= hits, "{hits} {raised}");
+    }
+
     #[test]
     fn the_beam_start_never_passes_the_exact_casts_hit() {
-        let budget = MemBudget::fixed(1 << 30);
         for (s, depth) in [
             (Shape::Sphere { radius: 0.8 }, 8),
             (Shape::Menger { level: 4 }, 8),
         ] {
-            let t = build(&s, depth, &budget).unwrap();
-            let b = camera_rays::<f64>(96);
-            let p = b.params(None, 1 << 16);
-            let exact = cast_all::<f64>(&t, &b.o, &b.d, &p);
-            let starts = run_starts::<f64, Relative>(&t.nodes, depth, &b.o, &b.d, &p);
-            let (mut raised, mut hits) = (0, 0);
-            for i in 0..b.o.len() {
-                let dist = starts[i / RUN].expect("camera runs share an origin");
-                let q = beam_params(&p, b.d[i], dist);
-                raised += (q.near > p.near) as u32;
-                if exact.hit[i] == 1 {
-                    hits += 1;
-                    assert!(
-                        q.near < exact.t[i],
-                        "{s:?} ray {i}: {} >= {}",
-                        q.near,
-                        exact.t[i]
-                    );
-                }
-            }
-            assert!(hits > 200 && raised >= hits, "{hits} {raised}");
+            bound_holds::<f64>(&s, depth);
+            bound_holds::<f32>(&s, depth);
         }
+    }
+
+    #[test]
+    fn grazing_axes_widen_the_pull_back() {
+        let o = [2.0f32, 1.5, 2.5];
+        let steep = plane_time_error(o, [-0.6f32, -0.4, -0.7]);
+        let grazing = plane_time_error(o, [-0.6f32, 0.0, -0.7]);
+        assert!(steep < 1e-4 && grazing > 1.0, "{steep} {grazing}");
+        assert!(plane_time_error([2.0f64, 1.5, 2.5], [-0.6f64, -0.4, -0.7]) < 1e-13);
     }
 
     #[test]
