@@ -7,6 +7,7 @@
 
 pub mod attributes;
 pub mod batch;
+pub mod beam;
 pub mod cast;
 pub mod cast_sse;
 pub mod checks;

@@ -8,15 +8,17 @@
 
 use crate::error::Result;
 use crate::gpu::voxels::GpuCast;
+use crate::gpu::GpuContext;
 use crate::real::Real;
 use crate::tensor::{Outputs, Tensor};
 use crate::voxels::attributes::{quality, AttrForm, Attributes};
 use crate::voxels::batch::Batch;
 use crate::voxels::dag::Dag;
-use crate::voxels::gpu::hits_from_gpu;
+use crate::voxels::gpu::{attr_image_gpu, hits_from_gpu};
 use crate::voxels::octree::Octree;
 use crate::voxels::referee_mesh::{TriangleCheck, VoxelCheck};
 use crate::voxels::render::{shade, RefereeHits, VoxelHits};
+use crate::voxels::through::Through;
 use crate::voxels::voxelise::MeshVoxels;
 
 fn with_3(shape: &[usize]) -> Vec<usize> {
@@ -210,12 +212,15 @@ impl<F: Real> Batch<F> {
     }
 }
 
-/// A GPU cast of `b` as [`Batch::cast_outputs`] (no attribute image; the
-/// kernel's `gpu_s` as `cast_s`), plus metric `wall_s` (`wall`, submit to
-/// readback with the upload) and counter `kernel_max_iter`.
+/// A GPU cast of `b` as [`Batch::cast_outputs`] (the kernel's `gpu_s` as
+/// `cast_s`; with `attrs` the image shaded from the hit leaves' attributes
+/// decoded on the GPU, [`attr_image_gpu`], through `th`'s leaf numbering),
+/// plus metric `wall_s` (`wall`, submit to readback with the upload) and
+/// counter `kernel_max_iter`.
 pub fn gpu_cast_outputs(
     cast: &GpuCast,
     b: Batch<f32>,
+    (attrs, form, th): (Option<&Attributes>, AttrForm, Through),
     (wall, depth, dump): (f64, u32, bool),
     out: &mut Outputs,
 ) -> Result<()> {
@@ -223,5 +228,11 @@ pub fn gpu_cast_outputs(
         .counter("kernel_max_iter", cast.max_iter as u64);
     let hits = cast.hits.iter().filter(|h| h.hit()).count() as u64;
     let h = hits_from_gpu(&cast.hits);
-    b.cast_outputs((h, None), (cast.gpu_s, hits), depth, dump, out)
+    let img = match attrs {
+        Some(a) => Some(attr_image_gpu(GpuContext::get()?, &h, (a, form), |v| {
+            th.attr_index(v)
+        })?),
+        None => None,
+    };
+    b.cast_outputs((h, img), (cast.gpu_s, hits), depth, dump, out)
 }

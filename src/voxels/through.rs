@@ -1,6 +1,6 @@
 //! What a scene's rays are cast through ([`Through`]: the octree, the DAG,
 //! or the octree with contours) and by which CPU path ([`CastPath`]: per
-//! ray, the referee, or by packets), on the CPU or uploaded to the GPU.
+//! ray, the referee, by packets, SSE, or from beam starts), on the CPU or uploaded to the GPU.
 
 use serde::Deserialize;
 
@@ -8,6 +8,7 @@ use crate::error::{Error, Result};
 use crate::gpu::voxels::{GpuAddressing, GpuContours, GpuOctree};
 use crate::gpu::GpuContext;
 
+use super::beam::cast_all_beam;
 use super::cast::{Absolute, CastParams, CastReal, Relative};
 use super::dag::Dag;
 use super::gpu::contour_lut;
@@ -27,11 +28,20 @@ pub enum CastPath {
     /// [`super::cast_sse`]: one ray at a time, its three axes in one SSE
     /// register, identical results (f32 only).
     Sse,
+    /// [`super::beam`]: each run of rays starts at its conservative beam
+    /// bound, then the SSE cast (f32; the per-ray loop otherwise): identical
+    /// hit, t, leaf, normal, fewer iterations.
+    Beam,
 }
 
 impl CastPath {
     /// Every path, the referee first.
-    pub const ALL: [CastPath; 3] = [CastPath::PerRay, CastPath::Packet, CastPath::Sse];
+    pub const ALL: [CastPath; 4] = [
+        CastPath::PerRay,
+        CastPath::Packet,
+        CastPath::Sse,
+        CastPath::Beam,
+    ];
 
     /// The path's name in scene and metric keys.
     pub fn name(self) -> &'static str {
@@ -39,6 +49,7 @@ impl CastPath {
             CastPath::PerRay => "per_ray",
             CastPath::Packet => "packet",
             CastPath::Sse => "sse",
+            CastPath::Beam => "beam",
         }
     }
 }
@@ -102,9 +113,26 @@ impl<'a> Through<'a> {
             (CastPath::Sse, Through::Dag(g)) => {
                 cast_all_sse::<F, Absolute>(&g.nodes, g.depth, o, d, p).ok_or_else(sse_f32)
             }
-            (CastPath::Packet | CastPath::Sse, Through::Contours(..)) => Err(Error::NotSupported(
-                format!("the {path:?} cast has no contours: use cast: per_ray"),
-            )),
+            (CastPath::Beam, Through::Octree(t)) => {
+                Ok(cast_all_beam::<F, Relative>(&t.nodes, t.depth, o, d, p))
+            }
+            (CastPath::Beam, Through::Dag(g)) => {
+                Ok(cast_all_beam::<F, Absolute>(&g.nodes, g.depth, o, d, p))
+            }
+            (CastPath::Packet | CastPath::Sse | CastPath::Beam, Through::Contours(..)) => {
+                Err(Error::NotSupported(format!(
+                    "the {path:?} cast has no contours: use cast: per_ray"
+                )))
+            }
+        }
+    }
+
+    /// The attribute index of voxel `v`'s leaf (the octree's leaf
+    /// numbering; the DAG finds the same index).
+    pub fn attr_index(&self, v: [u32; 3]) -> Option<u32> {
+        match *self {
+            Through::Octree(t) | Through::Contours(t, _) => t.attr_index(v),
+            Through::Dag(g) => g.attr_index(v),
         }
     }
 

@@ -237,6 +237,7 @@ pub const ROUNDS: u32 = 3;
 /// `{structure}_{set}_{path}_differing_rays` (hit, t, leaf or normal bits
 /// against per-ray), `{structure}_gpu_{set}_mrays_per_s`,
 /// `{structure}_{set}_mean_iters` (per-ray; the GPU's are the same),
+/// `{structure}_{set}_{path}_mean_iters` (fewer on the beam path),
 /// `{structure}_{set}_node_bytes_per_ray` (4 x node words the kernel read;
 /// the per-ray CPU cast reads the same words).
 pub fn cpu_vs_gpu(
@@ -284,6 +285,10 @@ pub fn cpu_vs_gpu(
                     out.metric(
                         &format!("{sname}_{set}_{pname}_differing_rays"),
                         differing(&res[0], &res[k]) as f64,
+                    );
+                    out.metric(
+                        &format!("{sname}_{set}_{pname}_mean_iters"),
+                        mean(res[k].iters.iter().map(|&i| i as f64)),
                     );
                 }
             }

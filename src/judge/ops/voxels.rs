@@ -7,10 +7,12 @@
 //! Ray sources (`params.rays`) are documented in `voxels::batch`.
 //! `voxels.render` casts through the scene's structure (`voxels::through`:
 //! octree, `structure: dag`, `contours: true`) on either backend; `cast`:
-//! `per_ray` (default), `packet` or `sse` (`voxels::through::CastPath`, identical outputs).
+//! `per_ray` (default), `packet`, `sse` or `beam` (`voxels::through::CastPath`; identical
+//! outputs, `beam` with fewer `iters`).
 //!
 //! Scene key `attributes: plain | dxt` shades `voxels.render`'s image from
-//! the hit leaves' decoded colours and normals (CPU only);
+//! the hit leaves' decoded colours and normals (on the GPU backend decoded
+//! by `kernels/voxel_attrs.wgsl`);
 //! `voxels.attributes` and `voxels.mesh_referee` wire `voxels::checks`.
 
 use super::{BackendKind, OpCtx};
@@ -24,12 +26,11 @@ use crate::rays::Rays;
 use crate::real::Real;
 use crate::scene::voxels::VoxelScene;
 use crate::tensor::Outputs;
-use crate::voxels::attributes::{for_scene, AttrForm};
+use crate::voxels::attributes::for_scene;
 use crate::voxels::batch::{Batch, RaySource};
 use crate::voxels::cast::{CastParams, CastReal};
 use crate::voxels::checks::{attribute_quality, contour_error, mesh_referee};
 use crate::voxels::contour::fit_all;
-use crate::voxels::dag::Dag;
 use crate::voxels::gpu::{cast_batch, cast_camera};
 use crate::voxels::octree::{build, Octree};
 use crate::voxels::outputs::{build_metrics, dag_metrics, gpu_cast_outputs};
@@ -86,7 +87,7 @@ fn render_in<F: CastReal>(
     ctx: &OpCtx,
     sc: &VoxelScene,
     th: Through,
-    (tree, dag): (&Octree, Option<&Dag>),
+    tree: &Octree,
 ) -> Result<Outputs> {
     let attrs = for_scene(&sc.shape, tree, sc.attributes)?;
     let b = batch::<F>(ctx, sc)?;
@@ -98,10 +99,7 @@ fn render_in<F: CastReal>(
     let h = h?;
     let mut out = Outputs::default();
     let hits = h.hit.iter().map(|&x| x as u64).sum();
-    let img = attrs.map(|a| match dag {
-        Some(g) => attr_image(&h, &a, sc.attributes, |v| g.attr_index(v)),
-        None => attr_image(&h, &a, sc.attributes, |v| tree.attr_index(v)),
-    });
+    let img = attrs.map(|a| attr_image(&h, &a, sc.attributes, |v| th.attr_index(v)));
     b.cast_outputs((h, img), (secs, hits), sc.depth, ctx.dump, &mut out)?;
     Ok(out)
 }
@@ -112,16 +110,14 @@ fn render(ctx: &OpCtx) -> Result<Outputs> {
     let (dag, cs) = sc.extras(&tree, &ctx.budget)?;
     let th = Through::pick(&tree, dag.as_ref(), cs.as_deref());
     let mut out = if ctx.backend == BackendKind::Cpu {
-        by_precision!(ctx, render_in(ctx, &sc, th, (&tree, dag.as_ref())))?
+        by_precision!(ctx, render_in(ctx, &sc, th, &tree))?
     } else {
-        if sc.attributes != AttrForm::None {
-            let why = "attributes are decoded on the CPU only (no WGSL twin of the DXT decode yet)";
-            return Err(Error::NotSupported(format!("{}: {why}", ctx.case_id)));
-        }
         let (r, wall, _) = timed(|| gpu_run(ctx, &sc, th, ctx.dump));
         let (cast, b, _) = r?;
+        let a = for_scene(&sc.shape, &tree, sc.attributes)?;
         let mut out = Outputs::default();
-        gpu_cast_outputs(&cast, b, (wall, sc.depth, ctx.dump), &mut out)?;
+        let at = (a.as_ref(), sc.attributes, th);
+        gpu_cast_outputs(&cast, b, at, (wall, sc.depth, ctx.dump), &mut out)?;
         out
     };
     if let Some(g) = &dag {
