@@ -405,7 +405,7 @@ mod avx2 {
                     a
                 };
                 let (ta, ha, sa, la, aa) = (st(t), st(h), st(sigma), st(log_t), st(alpha));
-                let ca = col.map(|v| st(v));
+                let ca = col.map(st);
                 let live_bits = _mm256_movemask_ps(live);
                 for l in (0..LANES).filter(|l| live_bits & (1 << l) != 0) {
                     let s = LaneSample {
@@ -444,7 +444,7 @@ mod avx2 {
             a
         };
         let (tr, lt, lc, dp, dc) = (st(trans), st(log_t), st(log_c), st(depth), st(depth_c));
-        let (cs, cc) = (rgb.map(|v| st(v)), rgb_c.map(|v| st(v)));
+        let (cs, cc) = (rgb.map(st), rgb_c.map(st));
         let (na, sa) = (sti(n), sti(sat));
         let (eb, sb) = (_mm256_movemask_ps(ended), _mm256_movemask_ps(stopped));
         std::array::from_fn(|l| {
