@@ -332,7 +332,7 @@ mod tests {
     fn npy_round_trip_keeps_dtype_shape_and_bits() {
         let dir = std::env::temp_dir().join(format!("hp-tensor-{}", std::process::id()));
         std::fs::create_dir_all(&dir).unwrap();
-        let cases = vec![
+        let cases = [
             Tensor::from_shape_vec(
                 &[2, 3],
                 vec![0.5f32, -1.0, 3.25, f32::MIN_POSITIVE, 0.0, 7.0],

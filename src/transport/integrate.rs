@@ -499,7 +499,7 @@ fn locate<F: Real, const N: usize, H: Hamiltonian<F, N>>(
             a = b;
             fa = fb;
         } else {
-            fa = fa * F::of(0.5);
+            fa *= F::of(0.5);
         }
         b = c;
         fb = fc;

@@ -9,14 +9,14 @@
 use std::time::Instant;
 
 use crate::budget::MemBudget;
-use crate::error::Result;
+use crate::error::{Error, Result};
 use crate::real::Real;
 use crate::tensor::{Outputs, Tensor};
 use crate::transport::image::{render as render_image, ImageOut};
 use crate::transport::integrate::Options;
 use crate::transport::kerr_trace::kerr_deflection;
 use crate::transport::tasks::{
-    deflection, grin_rays, observer_scan, Curved, GrinStop, Polyline, Task,
+    deflection, grin_rays, observer_scan, shadow_angle, Curved, GrinStop, Polyline, Task,
 };
 
 pub fn vec1<F: Real>(v: Vec<F>) -> Result<Tensor> {
@@ -302,4 +302,25 @@ pub fn run_curved<F: Real>(
         }
         (Curved::Image(t), None) => image_tensors(render_image(t, opt, budget)?, out),
     }
+}
+
+/// `transport.shadow_angle`: the capture angle of an observer task by
+/// bisection with the integrator (`shadow_angle_deg`), timed (`time_s`).
+pub fn shadow_angle_outputs<F: Real>(
+    task: &Task<F>,
+    opt: &Options<F>,
+    iters: u32,
+) -> Result<Outputs> {
+    let Task::Observer(scan) = task else {
+        return Err(Error::invalid(
+            "task",
+            "transport.shadow_angle needs a `type: observer` task",
+        ));
+    };
+    let t = Instant::now();
+    let a = shadow_angle(scan, opt, iters)?;
+    let mut out = Outputs::default();
+    out.tensor("shadow_angle_deg", f64s(vec![a])?);
+    out.metric("time_s", t.elapsed().as_secs_f64());
+    Ok(out)
 }

@@ -1,8 +1,6 @@
-//! Operations of the `transport` renderer (curved rays; CPU fan-out or
-//! `kernels/transport.wgsl`): the render (outputs per task in
-//! `transport::outputs`), referees (`transport::referee`, `referee_kerr`),
-//! self-checks (`transport::checks`, `image_checks`), the GPU image band
-//! (`transport::gpu_parity`) and backend timings (`judge::measure::transport`).
+//! Operations of the `transport` renderer (curved rays, CPU or `kernels/transport.wgsl`): render
+//! (`transport::outputs`), referees, self-checks (`transport::checks`, `image_checks`), the GPU
+//! image band (`transport::gpu_parity`) and backend timings (`judge::measure::transport`).
 
 use super::{BackendKind, OpCtx};
 use crate::error::{Error, Result};
@@ -15,8 +13,8 @@ use crate::transport::checks::{convergence_order, drift_growth};
 use crate::transport::gpu_parity::band_outputs;
 use crate::transport::image::{render as render_image, ImageOut, ImageTask};
 use crate::transport::image_checks::kerr_closed_form;
-use crate::transport::outputs::{f64s, run_curved, run_task};
-use crate::transport::tasks::{shadow_angle, Curved, Task};
+use crate::transport::outputs::{run_curved, run_task, shadow_angle_outputs};
+use crate::transport::tasks::{Curved, Task};
 
 ops! {
     "transport.render" CpuGpuF32 render []
@@ -59,8 +57,7 @@ fn render_in<F: Real>(
     let (task, opt) = s.build::<F>()?;
     let mut out = Outputs::default();
     if let Some(b) = s.research_banner() {
-        // warn, not info: the preset overrides the scene's integrator, and the
-        // banner must show at the default log level.
+        // warn: the preset overrides the scene's integrator; show it at the default level.
         tracing::warn!("{}", b.line);
         out.counter("research_settings_hash", b.hash);
     }
@@ -108,18 +105,7 @@ fn grin_closed_form(ctx: &OpCtx) -> Result<Outputs> {
 
 fn shadow_angle_in<F: Real>(s: &TransportScene, iters: u32) -> Result<Outputs> {
     let (task, opt) = s.build::<F>()?;
-    let Task::Observer(scan) = task else {
-        return Err(Error::invalid(
-            "task",
-            "transport.shadow_angle needs a `type: observer` task",
-        ));
-    };
-    let t = std::time::Instant::now();
-    let a = shadow_angle(&scan, &opt, iters)?;
-    let mut out = Outputs::default();
-    out.tensor("shadow_angle_deg", f64s(vec![a])?);
-    out.metric("time_s", t.elapsed().as_secs_f64());
-    Ok(out)
+    shadow_angle_outputs(&task, &opt, iters)
 }
 
 fn shadow_angle_op(ctx: &OpCtx) -> Result<Outputs> {
