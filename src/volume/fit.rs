@@ -540,6 +540,12 @@ pub fn fit(cfg: &FitConfig, budget: &MemBudget) -> Result<FitReport> {
             let decay = cfg
                 .lr_final
                 .powf(loss.len() as f64 / cfg.iters.max(1) as f64);
+            tracing::info!(
+                iter = loss.len(),
+                loss = l,
+                elapsed_s = t_start.elapsed().as_secs_f64(),
+                "fit"
+            );
             loss.push(l);
             st.step(cfg, decay, gs, gc);
         }

@@ -159,6 +159,23 @@ impl<F: Real> RayAcc<F> {
     }
 }
 
+impl RayOut<f32> {
+    /// The same result in precision `F` (exact: every f32 is an `F`).
+    pub fn to_real<F: Real>(self) -> RayOut<F> {
+        let c = |v: f32| F::of(v as f64);
+        RayOut {
+            rgb: self.rgb.map(c),
+            trans: c(self.trans),
+            log_trans: c(self.log_trans),
+            depth: c(self.depth),
+            opacity: c(self.opacity),
+            n: self.n,
+            saturated: self.saturated,
+            flags: self.flags,
+        }
+    }
+}
+
 /// `f_int` output: per-ray results and the per-sample buffers the backward
 /// pass reads.
 #[derive(Clone, Debug, PartialEq)]

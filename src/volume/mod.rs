@@ -21,6 +21,7 @@ pub mod diff;
 pub mod field;
 pub mod fit;
 pub mod fused;
+pub mod fused_lanes;
 pub mod gpu;
 pub mod grad_outputs;
 pub mod integrate;

@@ -9,12 +9,13 @@ use crate::parallel::par_collect;
 use crate::real::Real;
 
 use super::super::field::{ColorField, Field};
+use super::super::fused_lanes::{query_of, LaneMarch, LANES};
 use super::super::integrate::Integrated;
 use super::super::sample::{walk_lattice, Samples};
 use super::field_grad::{param_count, param_index};
 use super::reduce::{push_rec, reduce_sorted, scatter_dense, sum_chunks, Unit, UNIT_RAYS};
-use super::walk::{ray_grads, replay_fused, replay_unfused, Ctx};
-use super::{DiffOptions, Grads, Ksum, Reduce};
+use super::walk::{ray_grads, replay_fused, replay_fused_lanes, replay_unfused, Ctx};
+use super::{DiffOptions, Grads, Ksum, Rec, Reduce};
 
 /// The backward pass over the given forward state (module doc).
 #[allow(clippy::too_many_arguments)]
@@ -115,6 +116,10 @@ pub(super) fn backward<F: Real>(
 
     let t_start = Instant::now();
     let sorted = reduce == Reduce::Sorted;
+    // The fused chain replays rays 8 at a time in the forward's lanes where
+    // they cover the medium (bit-identical records).
+    let lanes = LaneMarch::new(cx.medium, cx.m, cx.occ).filter(|_| buffers.is_none());
+    let query = query_of(cx.medium);
     let out_units: Vec<Unit<F>> = par_collect("f_diff", units.len(), |ui| {
         let (a, b) = units[ui];
         let mut u = Unit {
@@ -141,11 +146,22 @@ pub(super) fn backward<F: Real>(
             samples: 0,
         };
         let mut recs = Vec::new();
+        let mut lane_recs: [Vec<Rec<F>>; LANES] = Default::default();
+        let mut lane_log_t = [F::zero(); LANES];
         let mut ps: Vec<(F, [F; 3])> = Vec::new();
         for r in a..b {
-            let log_tn = match buffers {
-                Some((s, it)) => replay_unfused(cx, s, it, r, &mut recs),
-                None => replay_fused(cx, r, &mut recs),
+            let log_tn = match (buffers, &lanes) {
+                (Some((s, it)), _) => replay_unfused(cx, s, it, r, &mut recs),
+                (None, Some(lm)) => {
+                    let j = (r - a) % LANES;
+                    if j == 0 {
+                        let len = LANES.min(b - r);
+                        lane_log_t = replay_fused_lanes(cx, lm, &query, r, len, &mut lane_recs);
+                    }
+                    std::mem::swap(&mut recs, &mut lane_recs[j]);
+                    lane_log_t[j]
+                }
+                (None, None) => replay_fused(cx, r, &mut recs),
             };
             u.samples += recs.len() as u64;
             if per_sample {

@@ -6,6 +6,7 @@ use crate::real::Real;
 use crate::rng::rand_f64;
 
 use super::super::field::{ColorField, Field, Grid, Medium};
+use super::super::fused_lanes::{LaneMarch, LaneRay, LaneSample, LaneSink, Query, LANES};
 use super::super::integrate::{Integrated, RayAcc};
 use super::super::occupancy::Occupancy;
 use super::super::sample::{walk_lattice, March, Samples, Sampling, TransPath};
@@ -75,6 +76,49 @@ pub(super) fn replay_fused<F: Real>(cx: &Ctx<F>, r: usize, recs: &mut Vec<Rec<F>
         },
     );
     acc.log_t
+}
+
+/// The records of rays `first..first + len` (`len <= LANES`), replayed in
+/// the forward's AVX2 lanes: the same records and final log T as
+/// [`replay_fused`] ray by ray (the lanes are bit-identical to the scalar
+/// march). Clears every vector of `recs` first.
+pub(super) fn replay_fused_lanes<F: Real>(
+    cx: &Ctx<F>,
+    lm: &LaneMarch,
+    query: &Query,
+    first: usize,
+    len: usize,
+    recs: &mut [Vec<Rec<F>>; LANES],
+) -> [F; LANES] {
+    struct Sink<'a, F>(&'a mut [Vec<Rec<F>>; LANES]);
+    impl<F: Real> LaneSink for Sink<'_, F> {
+        const RECORD: bool = true;
+        fn sample(&mut self, lane: usize, s: LaneSample) {
+            let f = |v: f32| F::of(v as f64);
+            self.0[lane].push(Rec {
+                k: s.k,
+                t: f(s.t),
+                dt: f(s.dt),
+                sigma: f(s.sigma),
+                c: s.c.map(f),
+                log_t: f(s.log_t),
+                alpha: f(s.alpha),
+            });
+        }
+    }
+    recs.iter_mut().for_each(Vec::clear);
+    let rays = cx.rays;
+    let f = |v: F| v.f64() as f32;
+    let lane_rays: Vec<LaneRay> = (first..first + len)
+        .map(|r| LaneRay {
+            o: rays.o[r].map(f),
+            d: rays.d[r].map(f),
+            t0: f(rays.t0[r]),
+            t1: f(rays.t1[r]),
+        })
+        .collect();
+    let out = lm.march8_into(&lane_rays, query, &mut Sink(recs));
+    out.map(|(acc, _)| F::of(acc.log_t as f64))
 }
 
 /// Fills `recs` from the persisted buffers (unfused chain); lattice indices
