@@ -574,6 +574,7 @@ fn a_worker_ends_itself_at_its_own_deadline() {
             case: Box::new(man.cases[0].clone()),
             backend: hotpath::judge::ops::BackendKind::Cpu,
         },
+        scenes: Default::default(),
         thresholds: th,
         perf: Default::default(),
         out: d.join("out"),
@@ -1030,4 +1031,122 @@ fn dash_case_ids_run_filter_and_repro_into_their_own_out_folder() {
     );
     let rb = std::fs::read_to_string(d.join("out/repro/-rf-cpu/scoreboard.json")).unwrap();
     assert!(rb.contains("\"-rf\"") && !rb.contains("--help"), "{rb}");
+}
+
+/// `(verdicts by case id, input hashes)` of a `--json` run's stdout.
+fn verdicts_and_hashes(o: &Output) -> (Vec<(String, String)>, serde_json::Value) {
+    let b: serde_json::Value =
+        serde_json::from_slice(&o.stdout).unwrap_or_else(|e| panic!("{e}: {}", text(o)));
+    let v = b["cases"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|c| {
+            let r = &c["results"][0];
+            (
+                c["id"].as_str().unwrap().to_string(),
+                r["verdict"].as_str().unwrap().to_string(),
+            )
+        })
+        .collect();
+    (v, b["inputs"].clone())
+}
+
+/// A run whose first case is slow (a hang with a 1 s limit); while it runs,
+/// the manifest, thresholds and a referenced scene are rewritten so that
+/// each later case would FAIL. The verdicts and input hashes must be those
+/// of the files as they were at start (the old binary re-read the scene in
+/// the worker: `edited_scene` FAILed with the start hashes on the board).
+#[test]
+fn edits_during_a_run_change_no_verdict_and_no_input_hash() {
+    let d = tmp("midrun");
+    let scene = std::fs::read_to_string(
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("TESTS/scenes/rays_pinhole.yaml"),
+    )
+    .unwrap()
+    .replace("width: 64", "width: 4")
+    .replace("height: 64", "height: 4");
+    std::fs::write(d.join("edited.yaml"), &scene).unwrap();
+    std::fs::write(d.join("fixed.yaml"), &scene).unwrap();
+    let body = "cases:
+  - id: slow_first
+    op: selftest.hang
+    timeout: selftest_short
+  - id: edited_manifest
+    op: selftest.good
+    assert:
+      - range: {tensor: rgb, min: 0, max: 1}
+  - id: edited_thresholds
+    op: selftest.gradient
+    params: {flip: true}
+    assert:
+      - fd_rel_err: {a: grad, b: fd, tol: selftest_grad}
+  - id: edited_scene
+    op: rays.generate
+    scene: edited.yaml
+    refs:
+      ref: {scene: fixed.yaml}
+    assert:
+      - memcmp_same: {a: d, b: ref.d}
+";
+    let m = manifest(&d, body);
+    let th = d.join("thresholds.yaml");
+    let th_text = std::fs::read_to_string(&th).unwrap();
+    let th_start = th_text
+        .replacen("  selftest_short: 3", "  selftest_short: 1", 1)
+        .replacen(
+            "  selftest_grad: {rtol: 1.0e-6, floor: 1.0e-9}",
+            "  selftest_grad: {rtol: 3.0, floor: 1.0e-9}",
+            1,
+        );
+    std::fs::write(&th, &th_start).unwrap();
+    let edit = || {
+        std::fs::write(&m, body.replace("min: 0, max: 1", "min: 2, max: 3")).unwrap();
+        std::fs::write(
+            &th,
+            th_start.replace("rtol: 3.0, floor", "rtol: 1.0e-6, floor"),
+        )
+        .unwrap();
+        std::fs::write(
+            d.join("edited.yaml"),
+            scene.replace("fov_y: 40", "fov_y: 41"),
+        )
+        .unwrap();
+    };
+    let run = |out: &str, filter: &str| {
+        let mut c = hpjudge();
+        c.arg("run")
+            .arg(&m)
+            .args(["--json", "--backend", "cpu", "--filter", filter, "--out"])
+            .arg(d.join(out));
+        c
+    };
+    let before = verdicts_and_hashes(&run("before", "edited").output().unwrap());
+    let judge = run("during", "_")
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::null())
+        .spawn()
+        .unwrap();
+    let log = d.join("during/slow_first/cpu/worker.log");
+    let t = std::time::Instant::now();
+    while !log.exists() && t.elapsed().as_secs() < 20 {
+        std::thread::sleep(std::time::Duration::from_millis(10));
+    }
+    edit();
+    let during = verdicts_and_hashes(&judge.wait_with_output().unwrap());
+    let after = verdicts_and_hashes(&run("after", "edited").output().unwrap());
+    let pass = |ids: &[&str], v: &str| -> Vec<(String, String)> {
+        ids.iter().map(|i| (i.to_string(), v.to_string())).collect()
+    };
+    let ids = ["edited_manifest", "edited_scene", "edited_thresholds"];
+    assert_eq!(before.0, pass(&ids, "PASS"), "before the edit");
+    assert_eq!(after.0, pass(&ids, "FAIL"), "the edit flips every case");
+    let mut expect = pass(&ids, "PASS");
+    expect.push(("slow_first".into(), "TIMEOUT".into()));
+    expect.sort();
+    assert_eq!(during.0, expect, "edited during the run");
+    assert_eq!(during.1, before.1, "input hashes of the start");
+    for k in ["manifest_tree_sha256", "thresholds_sha256", "scenes_sha256"] {
+        assert_ne!(after.1[k], before.1[k], "{k} sees the edit");
+    }
 }
