@@ -1150,3 +1150,62 @@ fn edits_during_a_run_change_no_verdict_and_no_input_hash() {
         assert_ne!(after.1[k], before.1[k], "{k} sees the edit");
     }
 }
+
+/// `hpjudge bless` runs each case in a worker under the run's limits: a
+/// case past its time limit is killed (TIMEOUT) and a panicking one is an
+/// ERROR, neither writes a golden, and the goldens of the cases around them
+/// are written and listed. The old binary stopped listing at the first bad
+/// case (`d_good`'s golden written but never reported).
+#[test]
+fn bless_kills_a_case_past_its_limit_and_keeps_the_other_goldens() {
+    let d = tmp("bless");
+    let m = manifest(
+        &d,
+        "cases:
+  - id: a_good
+    op: selftest.good
+    assert:
+      - memcmp_same: {a: rgb, b: \"golden:it/a.npy\"}
+  - id: b_hang
+    op: selftest.hang
+    timeout: selftest_short
+    assert:
+      - memcmp_same: {a: x, b: \"golden:it/b.npy\"}
+  - id: c_panics
+    op: selftest.panic
+    assert:
+      - memcmp_same: {a: x, b: \"golden:it/c.npy\"}
+  - id: d_good
+    op: selftest.good
+    assert:
+      - memcmp_same: {a: t, b: \"golden:it/d.npy\"}
+",
+    );
+    let th = d.join("thresholds.yaml");
+    let t = std::fs::read_to_string(&th).unwrap();
+    std::fs::write(
+        &th,
+        t.replacen("  selftest_short: 3", "  selftest_short: 1", 1),
+    )
+    .unwrap();
+    let mut c = hpjudge();
+    c.arg("bless")
+        .arg(&m)
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped());
+    let mut child = c.spawn().unwrap();
+    let status = wait_for(&mut child, 30.0).expect("bless still running after 30 s");
+    let o = child.wait_with_output().unwrap();
+    let t = text(&o);
+    assert_eq!(status.code(), Some(1), "{t}");
+    let g = d.join("GOLDENS/it");
+    for (f, blessed) in [("a", true), ("b", false), ("c", false), ("d", true)] {
+        assert_eq!(g.join(format!("{f}.npy")).is_file(), blessed, "{f}: {t}");
+        let line = format!("blessed {}", g.join(format!("{f}.npy")).display());
+        assert_eq!(t.contains(&line), blessed, "{f}: {t}");
+    }
+    assert!(
+        t.contains("b_hang: TIMEOUT") && t.contains("c_panics: ERROR"),
+        "{t}"
+    );
+}

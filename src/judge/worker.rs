@@ -338,29 +338,39 @@ fn errored(mut res: BackendResult, msg: String) -> BackendResult {
     res
 }
 
-/// `hpjudge bless`: writes the `a` side of every golden comparison.
+/// `hpjudge bless`: writes the `a` side of every golden comparison, each to
+/// a `.part` file first, then renames them all: a case that dies part way
+/// leaves its old goldens whole.
 fn bless(
     mut res: BackendResult,
     c: &super::manifest::Case,
     tensors: &BTreeMap<String, Tensor>,
     goldens: &Path,
 ) -> BackendResult {
+    let mut parts = vec![];
     for a in &c.asserts {
         for (name, path) in a.goldens() {
             let Some(t) = tensors.get(&name) else {
                 return errored(res, format!("bless: no output {name:?}"));
             };
             let p = goldens.join(&path);
+            let part = p.with_extension("npy.part");
             if let Some(parent) = p.parent() {
                 if let Err(e) = std::fs::create_dir_all(parent) {
                     return errored(res, format!("bless: {}: {e}", parent.display()));
                 }
             }
-            if let Err(e) = t.write_npy(&p) {
+            if let Err(e) = t.write_npy(&part) {
                 return errored(res, format!("bless: {e}"));
             }
-            res.artifacts.push(p.display().to_string());
+            parts.push((part, p));
         }
+    }
+    for (part, p) in parts {
+        if let Err(e) = std::fs::rename(&part, &p) {
+            return errored(res, format!("bless: {}: {e}", p.display()));
+        }
+        res.artifacts.push(p.display().to_string());
     }
     res
 }
