@@ -212,7 +212,7 @@ pub fn validate(doc: &SceneDoc) -> Result<()> {
         "volume" => volume::load(doc).map(drop),
         "pathtrace" => pathtrace::parse(doc).map(drop),
         "transport" => transport::parse(doc).map(drop),
-        "voxels" => voxels::parse(doc).map(drop),
+        "voxels" => voxels::check(doc),
         other => Err(Error::invalid(
             doc.at(),
             format!(
