@@ -2,36 +2,15 @@
 //! judge's self-test and on bad inputs, each of which must get a clear
 //! error naming what was wrong and exit code 2.
 
+mod common;
+
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
-/// The binary under test; `HPJUDGE_IT_BIN` points these tests at another
-/// build (how a fix is shown to make a test pass that failed before it).
-fn exe() -> PathBuf {
-    std::env::var_os("HPJUDGE_IT_BIN")
-        .map(PathBuf::from)
-        .unwrap_or_else(|| PathBuf::from(env!("CARGO_BIN_EXE_hpjudge")))
-}
-
-fn hpjudge() -> Command {
-    let mut c = Command::new(exe());
-    c.current_dir(env!("CARGO_MANIFEST_DIR")).env_remove("CI");
-    c
-}
+use common::{exe, hpjudge, run_cmd, run_out, text};
 
 fn tmp(name: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("hpjudge-it-{}-{name}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&d);
-    std::fs::create_dir_all(&d).unwrap();
-    d
-}
-
-fn text(o: &Output) -> String {
-    format!(
-        "{}{}",
-        String::from_utf8_lossy(&o.stdout),
-        String::from_utf8_lossy(&o.stderr)
-    )
+    common::tmp_in("it", name)
 }
 
 /// Writes a manifest (with a copy of the project's thresholds beside it).
@@ -51,13 +30,7 @@ fn manifest(dir: &Path, body: &str) -> PathBuf {
 fn bad_input(body: &str, expect: &[&str]) {
     let d = tmp("bad");
     let m = manifest(&d, body);
-    let o = hpjudge()
-        .args(["run"])
-        .arg(&m)
-        .arg("--out")
-        .arg(d.join("out"))
-        .output()
-        .unwrap();
+    let o = run_out(&m, &d.join("out"), &[]);
     let t = text(&o);
     assert_eq!(o.status.code(), Some(2), "{t}");
     for e in expect {
@@ -72,11 +45,7 @@ fn bad_input(body: &str, expect: &[&str]) {
 #[test]
 fn judge_self_test_gets_every_expected_verdict() {
     let d = tmp("selftest");
-    let o = hpjudge()
-        .args(["run", "TESTS/selftest/manifest.yaml", "--json", "--out"])
-        .arg(&d)
-        .output()
-        .unwrap();
+    let o = run_out("TESTS/selftest/manifest.yaml", &d, &["--json"]);
     assert_eq!(o.status.code(), Some(0), "{}", text(&o));
     let b: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
     let cases = b["cases"].as_array().unwrap();
@@ -96,15 +65,7 @@ fn judge_self_test_gets_every_expected_verdict() {
 #[test]
 fn plain_run_ends_with_the_summary_line_and_writes_junit() {
     let d = tmp("summary");
-    let o = hpjudge()
-        .args([
-            "run",
-            "TESTS/rays/manifest.yaml",
-            "--filter",
-            "rays_clip",
-            "--out",
-        ])
-        .arg(&d)
+    let o = run_cmd("TESTS/rays/manifest.yaml", &d, &["--filter", "rays_clip"])
         .arg("--junit")
         .arg(d.join("junit.xml"))
         .output()
@@ -277,14 +238,7 @@ fn dump_failing_writes_rays_that_render_replays() {
         &d,
         "cases:\n  - id: planted_fail\n    op: rays.generate\n    scene: SCENES/rays_pinhole.yaml\n    set: {width: 8, height: 8}\n    assert:\n      - range: {tensor: t0, min: 100, max: 200}\n",
     );
-    let o = hpjudge()
-        .arg("run")
-        .arg(&m)
-        .arg("--dump-failing")
-        .arg("--out")
-        .arg(d.join("out"))
-        .output()
-        .unwrap();
+    let o = run_out(&m, &d.join("out"), &["--dump-failing"]);
     let t = text(&o);
     assert_eq!(o.status.code(), Some(1), "{t}");
     assert!(
@@ -433,14 +387,7 @@ fn a_npy_header_claiming_108_gb_is_refused_on_every_load_path() {
         &d,
         "cases:\n  - id: g\n    op: selftest.good\n    assert:\n      - max_abs: {a: rgb, b: \"golden:huge.npy\", tol: exact}\n",
     );
-    let o = hpjudge()
-        .arg("run")
-        .arg(&m)
-        .arg("--json")
-        .arg("--out")
-        .arg(d.join("out"))
-        .output()
-        .unwrap();
+    let o = run_out(&m, &d.join("out"), &["--json"]);
     let b: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap_or_default();
     let r = &b["cases"][0]["results"][0];
     assert_eq!(r["verdict"], "ERROR", "golden: {}", text(&o));
@@ -501,11 +448,7 @@ fn alive(pid: u32) -> bool {
 /// 20 s) for its worker; returns the judge and the worker pids.
 fn start_hanging_run(d: &Path) -> (std::process::Child, Vec<u32>) {
     let m = manifest(d, "cases:\n  - id: hang\n    op: selftest.hang\n");
-    let judge = hpjudge()
-        .arg("run")
-        .arg(&m)
-        .arg("--out")
-        .arg(d.join("out"))
+    let judge = run_cmd(&m, &d.join("out"), &[])
         .stdout(std::process::Stdio::null())
         .stderr(std::process::Stdio::null())
         .spawn()
@@ -523,13 +466,7 @@ fn start_hanging_run(d: &Path) -> (std::process::Child, Vec<u32>) {
 fn a_second_run_into_the_same_out_folder_is_refused_naming_the_holder() {
     let d = tmp("lock");
     let (mut first, _) = start_hanging_run(&d);
-    let o = hpjudge()
-        .arg("run")
-        .arg("TESTS/selftest/manifest.yaml")
-        .arg("--out")
-        .arg(d.join("out"))
-        .output()
-        .unwrap();
+    let o = run_out("TESTS/selftest/manifest.yaml", &d.join("out"), &[]);
     let _ = first.kill();
     let _ = first.wait();
     assert_eq!(o.status.code(), Some(2), "{}", text(&o));
@@ -608,11 +545,7 @@ fn a_worker_ends_itself_at_its_own_deadline() {
 fn a_closed_stdout_ends_the_run_quietly_with_an_incomplete_scoreboard() {
     use std::io::BufRead;
     let d = tmp("epipe");
-    let mut judge = hpjudge()
-        .arg("run")
-        .arg("TESTS/selftest/manifest.yaml")
-        .arg("--out")
-        .arg(d.join("out"))
+    let mut judge = run_cmd("TESTS/selftest/manifest.yaml", &d.join("out"), &[])
         .stdout(std::process::Stdio::piped())
         .stderr(std::process::Stdio::piped())
         .spawn()
@@ -640,18 +573,11 @@ fn a_closed_stdout_ends_the_run_quietly_with_an_incomplete_scoreboard() {
 #[test]
 fn a_complete_run_records_counts_and_input_hashes() {
     let d = tmp("hashes");
-    let o = hpjudge()
-        .args([
-            "run",
-            "TESTS/rays/manifest.yaml",
-            "--filter",
-            "rays_clip",
-            "--json",
-            "--out",
-        ])
-        .arg(&d)
-        .output()
-        .unwrap();
+    let o = run_out(
+        "TESTS/rays/manifest.yaml",
+        &d,
+        &["--filter", "rays_clip", "--json"],
+    );
     let b: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
     assert_eq!(b["complete"], true, "{}", text(&o));
     assert_eq!(b["cases_total"], 2);
@@ -718,19 +644,15 @@ fn deeply_nested_yaml_is_refused_in_under_a_second() {
 
 #[test]
 fn absurd_thread_counts_are_refused() {
-    let mut c = hpjudge()
-        .args([
-            "run",
-            "TESTS/selftest/manifest.yaml",
-            "--threads",
-            "100000",
-            "--out",
-        ])
-        .arg(tmp("threads"))
-        .stdout(std::process::Stdio::piped())
-        .stderr(std::process::Stdio::piped())
-        .spawn()
-        .unwrap();
+    let mut c = run_cmd(
+        "TESTS/selftest/manifest.yaml",
+        &tmp("threads"),
+        &["--threads", "100000"],
+    )
+    .stdout(std::process::Stdio::piped())
+    .stderr(std::process::Stdio::piped())
+    .spawn()
+    .unwrap();
     let s = wait_for(&mut c, 10.0).expect("still running after 10 s");
     let o = c.wait_with_output().unwrap();
     assert_eq!(s.code(), Some(2), "{}", text(&o));
@@ -991,13 +913,7 @@ fn dash_case_ids_run_filter_and_repro_into_their_own_out_folder() {
     std::fs::create_dir_all(&d).unwrap();
     let body = "cases:\n  - id: -rf\n    op: selftest.nan_image\n    assert:\n      - no_nan_inf: {}\n  - id: --help\n    op: selftest.good\n    assert:\n      - no_nan_inf: {}\n";
     let m = manifest(&d, body);
-    let o = hpjudge()
-        .arg("run")
-        .arg(&m)
-        .args(["--filter", "-rf", "--out"])
-        .arg(d.join("out"))
-        .output()
-        .unwrap();
+    let o = run_out(&m, &d.join("out"), &["--filter", "-rf"]);
     let t = text(&o);
     assert_eq!(o.status.code(), Some(1), "{t}");
     assert!(t.contains("0 passed, 1 failed"), "{t}");
@@ -1114,12 +1030,11 @@ fn edits_during_a_run_change_no_verdict_and_no_input_hash() {
         .unwrap();
     };
     let run = |out: &str, filter: &str| {
-        let mut c = hpjudge();
-        c.arg("run")
-            .arg(&m)
-            .args(["--json", "--backend", "cpu", "--filter", filter, "--out"])
-            .arg(d.join(out));
-        c
+        run_cmd(
+            &m,
+            &d.join(out),
+            &["--json", "--backend", "cpu", "--filter", filter],
+        )
     };
     let before = verdicts_and_hashes(&run("before", "edited").output().unwrap());
     let judge = run("during", "_")
