@@ -63,6 +63,18 @@ pub trait CastReal: Real {
     ) -> Option<CastHit<Self>> {
         None
     }
+    /// The lane cast ([`super::cast_lanes`]) of every ray: `Some` in f32
+    /// (bit-identical to [`cast_with`] without contours), `None` in other
+    /// precisions.
+    fn cast_all_lanes<A: Addressing>(
+        _nodes: &[u32],
+        _depth: u32,
+        _o: &[[Self; 3]],
+        _d: &[[Self; 3]],
+        _p: &CastParams,
+    ) -> Option<Vec<CastHit<Self>>> {
+        None
+    }
 }
 
 impl CastReal for f32 {
@@ -89,6 +101,17 @@ impl CastReal for f32 {
         p: &CastParams,
     ) -> Option<CastHit<f32>> {
         Some(super::cast_sse::cast_sse::<A>(nodes, depth, o, d, p))
+    }
+    fn cast_all_lanes<A: Addressing>(
+        nodes: &[u32],
+        depth: u32,
+        o: &[[f32; 3]],
+        d: &[[f32; 3]],
+        p: &CastParams,
+    ) -> Option<Vec<CastHit<f32>>> {
+        Some(super::cast_lanes::cast_all_lanes::<A>(
+            nodes, depth, o, d, p,
+        ))
     }
 }
 
@@ -211,6 +234,9 @@ fn max3<F: Real>(a: [F; 3]) -> F {
 /// octree ([`Relative`]) and the DAG ([`Absolute`]) casts, chosen at compile
 /// time so both run the same loop with the same float operations.
 pub trait Addressing {
+    /// Whether children sit at `high word + c` ([`Absolute`]); the lane
+    /// cast ([`super::cast_lanes`]) picks its vector child address by it.
+    const ABSOLUTE: bool;
     /// Slot of child `c`'s descriptor, for the node at slot `parent` with
     /// low word `desc`; `child_masks` is `desc` shifted so that bits 0..7
     /// are the non-leaf bits of the children before `c` (in the mirrored
@@ -235,6 +261,7 @@ pub struct Relative;
 pub struct Absolute;
 
 impl Addressing for Relative {
+    const ABSOLUTE: bool = false;
     #[inline(always)]
     fn child(nodes: &[u32], parent: usize, desc: u32, child_masks: u32, _c: u32) -> usize {
         let mut ofs = (desc >> 17) as usize;
@@ -259,6 +286,7 @@ impl Addressing for Relative {
 }
 
 impl Addressing for Absolute {
+    const ABSOLUTE: bool = true;
     #[inline(always)]
     fn child(nodes: &[u32], parent: usize, _desc: u32, _child_masks: u32, c: u32) -> usize {
         nodes[2 * parent + 1] as usize + c as usize

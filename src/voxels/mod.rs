@@ -9,6 +9,7 @@ pub mod attributes;
 pub mod batch;
 pub mod beam;
 pub mod cast;
+pub mod cast_lanes;
 pub mod cast_sse;
 pub mod checks;
 pub mod contour;
