@@ -202,6 +202,7 @@ mod avx2 {
         o: &'r [[f32; 3]],
         d: &'r [[f32; 3]],
         next: usize,
+        end: usize,
         ray: [usize; W],
         starts: [Option<Start<f32>>; W],
     }
@@ -211,7 +212,7 @@ mod avx2 {
         /// (rays that miss it are answered at once); the lane goes idle when
         /// none is left.
         fn refill(&mut self, s: &mut State, l: usize, p: &CastParams, out: &mut [CastHit<f32>]) {
-            while self.next < self.o.len() {
+            while self.next < self.end {
                 let i = self.next;
                 self.next += 1;
                 match start(self.o[i], self.d[i], p) {
@@ -269,7 +270,29 @@ mod avx2 {
         _mm256_add_epi32(_mm256_add_epi32(s.parent, ofs), cnt)
     }
 
-    /// Streams the rays `(o[i], d[i])` through the lanes, writing `out[i]`.
+    /// Loop constants of a stream.
+    struct Consts<'n> {
+        nodes: &'n [u32],
+        depth: u32,
+        p: &'n CastParams,
+        lod: Option<(__m256, __m256)>,
+        max_iter: __m256i,
+        lane_base: __m256i,
+    }
+
+    /// One set of [`W`] lanes: their state, stacks (lane `l`'s entry for
+    /// scale `s` at `l * SD + s`) and ray queue.
+    struct Group<'r> {
+        s: State,
+        stack_node: [i32; W * SD],
+        stack_tmax: [f32; W * SD],
+        q: Queue<'r>,
+    }
+
+    /// Streams the rays `(o[i], d[i])` through two groups of lanes (the
+    /// first half of the rays through one, the second through the other),
+    /// one iteration of each in turn, writing `out[i]`: the groups' loads
+    /// are independent, so one group's gathers overlap the other's work.
     ///
     /// # Safety
     /// The CPU must have AVX2 and `2 * nodes.len()` must fit an i32.
@@ -282,197 +305,241 @@ mod avx2 {
         p: &CastParams,
         out: &mut [CastHit<f32>],
     ) {
+        let k = Consts {
+            nodes,
+            depth,
+            p,
+            lod: p.lod.map(|l| {
+                (
+                    _mm256_set1_ps(l.orig_size as f32 * 0.5),
+                    _mm256_set1_ps(l.dir_size as f32 * 0.5),
+                )
+            }),
+            max_iter: _mm256_set1_epi32(p.max_iter.min(i32::MAX as u32) as i32),
+            lane_base: _mm256_mullo_epi32(
+                _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7),
+                _mm256_set1_epi32(SD as i32),
+            ),
+        };
+        let mid = o.len() / 2;
+        let mut g = [group(o, d, 0, mid), group(o, d, mid, o.len())];
+        for g in g.iter_mut() {
+            for l in 0..W {
+                g.q.refill(&mut g.s, l, p, out);
+            }
+        }
+        let [a, b] = &mut g;
+        loop {
+            let live_a = mask_i(a.s.act) != 0;
+            let live_b = mask_i(b.s.act) != 0;
+            if live_a {
+                step::<A>(a, &k, out);
+            }
+            if live_b {
+                step::<A>(b, &k, out);
+            }
+            if !live_a && !live_b {
+                return;
+            }
+        }
+    }
+
+    /// A group with idle lanes over rays `start..end`.
+    #[inline]
+    #[target_feature(enable = "avx2")]
+    unsafe fn group<'r>(
+        o: &'r [[f32; 3]],
+        d: &'r [[f32; 3]],
+        start: usize,
+        end: usize,
+    ) -> Group<'r> {
+        let zf = _mm256_setzero_ps();
+        let zi = _mm256_setzero_si256();
+        Group {
+            s: State {
+                pos: [zf; 3],
+                coef: [zf; 3],
+                bias: [zf; 3],
+                t_min: zf,
+                t_max: zf,
+                h: zf,
+                se: zf,
+                octant: zi,
+                parent: zi,
+                desc: zi,
+                idx: zi,
+                scale: zi,
+                iters: zi,
+                act: zi,
+            },
+            stack_node: [0; W * SD],
+            stack_tmax: [0.0; W * SD],
+            q: Queue {
+                o,
+                d,
+                next: start,
+                end,
+                ray: [usize::MAX; W],
+                starts: [None; W],
+            },
+        }
+    }
+
+    /// One loop iteration of every live lane of `g` (PUSH, ADVANCE, POP by
+    /// masks), then the answers of the lanes whose ray ended and their refill.
+    #[inline]
+    #[target_feature(enable = "avx2")]
+    unsafe fn step<A: Addressing>(g: &mut Group, k: &Consts, out: &mut [CastHit<f32>]) {
+        let (nodes, depth, p) = (k.nodes, k.depth, k.p);
         let base = nodes.as_ptr() as *const i32;
         let zf = _mm256_setzero_ps();
         let zi = _mm256_setzero_si256();
         let one = _mm256_set1_epi32(1);
         let half = _mm256_set1_ps(0.5);
-        let (lod_on, osz, dsz) = match p.lod {
-            Some(l) => (
-                true,
-                _mm256_set1_ps(l.orig_size as f32 * 0.5),
-                _mm256_set1_ps(l.dir_size as f32 * 0.5),
-            ),
-            None => (false, zf, zf),
-        };
-        let max_iter = _mm256_set1_epi32(p.max_iter.min(i32::MAX as u32) as i32);
-        let lane_base = _mm256_mullo_epi32(
-            _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7),
-            _mm256_set1_epi32(SD as i32),
-        );
-        let mut stack_node = [0i32; W * SD];
-        let mut stack_tmax = [0f32; W * SD];
-        let mut s = State {
-            pos: [zf; 3],
-            coef: [zf; 3],
-            bias: [zf; 3],
-            t_min: zf,
-            t_max: zf,
-            h: zf,
-            se: zf,
-            octant: zi,
-            parent: zi,
-            desc: zi,
-            idx: zi,
-            scale: zi,
-            iters: zi,
-            act: zi,
-        };
-        let mut q = Queue {
-            o,
-            d,
-            next: 0,
-            ray: [usize::MAX; W],
-            starts: [None; W],
-        };
-        for l in 0..W {
-            q.refill(&mut s, l, p, out);
+        let (max_iter, lane_base) = (k.max_iter, k.lane_base);
+        let (o, d) = (g.q.o, g.q.d);
+        let Group {
+            s,
+            stack_node,
+            stack_tmax,
+            q,
+        } = g;
+        let act = s.act;
+        s.iters = _mm256_add_epi32(s.iters, _mm256_and_si256(act, one));
+        let capped = _mm256_and_si256(act, _mm256_cmpgt_epi32(s.iters, max_iter));
+        let live = _mm256_andnot_si256(capped, act);
+        // Every live lane's descriptor in one gather.
+        let need = _mm256_and_si256(live, _mm256_cmpeq_epi32(s.desc, zi));
+        let slot = _mm256_slli_epi32::<1>(s.parent);
+        s.desc = _mm256_mask_i32gather_epi32::<4>(s.desc, base, slot, need);
+        let mut tc = [zf; 3];
+        for a in 0..3 {
+            tc[a] = _mm256_sub_ps(_mm256_mul_ps(s.pos[a], s.coef[a]), s.bias[a]);
         }
-        while mask_i(s.act) != 0 {
-            let act = s.act;
-            s.iters = _mm256_add_epi32(s.iters, _mm256_and_si256(act, one));
-            let capped = _mm256_and_si256(act, _mm256_cmpgt_epi32(s.iters, max_iter));
-            let live = _mm256_andnot_si256(capped, act);
-            // Every live lane's descriptor in one gather.
-            let need = _mm256_and_si256(live, _mm256_cmpeq_epi32(s.desc, zi));
-            let slot = _mm256_slli_epi32::<1>(s.parent);
-            s.desc = _mm256_mask_i32gather_epi32::<4>(s.desc, base, slot, need);
-            let mut tc = [zf; 3];
-            for a in 0..3 {
-                tc[a] = _mm256_sub_ps(_mm256_mul_ps(s.pos[a], s.coef[a]), s.bias[a]);
+        let tc_max = _mm256_min_ps(_mm256_min_ps(tc[0], tc[1]), tc[2]);
+        let shift = _mm256_xor_si256(s.idx, s.octant);
+        let cm = _mm256_sllv_epi32(s.desc, shift);
+        let valid = _mm256_andnot_si256(clear(cm, 0x8000), le(s.t_min, s.t_max));
+        let lod_stop = if let Some((osz, dsz)) = k.lod {
+            let fp = _mm256_add_ps(_mm256_mul_ps(tc_max, dsz), osz);
+            let cut = _mm256_castps_si256(_mm256_cmp_ps::<_CMP_GE_OQ>(fp, s.se));
+            _mm256_and_si256(valid, cut)
+        } else {
+            zi
+        };
+        let tv_max = _mm256_min_ps(s.t_max, tc_max);
+        let inter = _mm256_andnot_si256(lod_stop, _mm256_and_si256(valid, le(s.t_min, tv_max)));
+        let leaf = clear(cm, 0x80);
+        let stop = _mm256_and_si256(
+            live,
+            _mm256_or_si256(lod_stop, _mm256_and_si256(inter, leaf)),
+        );
+        let push = _mm256_and_si256(live, _mm256_andnot_si256(leaf, inter));
+        let adv = _mm256_andnot_si256(_mm256_or_si256(stop, push), live);
+        let mut exit = zi;
+        if mask_i(push) != 0 {
+            // PUSH: the stack write where `tc_max < h`, per lane.
+            let keep = _mm256_castps_si256(_mm256_cmp_ps::<_CMP_LT_OQ>(tc_max, s.h));
+            for l in bits(mask_i(_mm256_and_si256(push, keep))) {
+                let k = l * SD + li(&mut s.scale)[l] as usize;
+                stack_node[k] = li(&mut s.parent)[l];
+                stack_tmax[k] = lf(&mut s.t_max)[l];
             }
-            let tc_max = _mm256_min_ps(_mm256_min_ps(tc[0], tc[1]), tc[2]);
-            let shift = _mm256_xor_si256(s.idx, s.octant);
-            let cm = _mm256_sllv_epi32(s.desc, shift);
-            let valid = _mm256_andnot_si256(clear(cm, 0x8000), le(s.t_min, s.t_max));
-            let lod_stop = if lod_on {
-                let fp = _mm256_add_ps(_mm256_mul_ps(tc_max, dsz), osz);
-                let cut = _mm256_castps_si256(_mm256_cmp_ps::<_CMP_GE_OQ>(fp, s.se));
-                _mm256_and_si256(valid, cut)
+            let child = if A::ABSOLUTE {
+                let hi_slot = _mm256_add_epi32(slot, one);
+                let hi = _mm256_mask_i32gather_epi32::<4>(zi, base, hi_slot, push);
+                _mm256_add_epi32(hi, _mm256_xor_si256(shift, _mm256_set1_epi32(7)))
             } else {
-                zi
+                child_relative(base, &s, cm, push)
             };
-            let tv_max = _mm256_min_ps(s.t_max, tc_max);
-            let inter = _mm256_andnot_si256(lod_stop, _mm256_and_si256(valid, le(s.t_min, tv_max)));
-            let leaf = clear(cm, 0x80);
-            let stop = _mm256_and_si256(
-                live,
-                _mm256_or_si256(lod_stop, _mm256_and_si256(inter, leaf)),
-            );
-            let push = _mm256_and_si256(live, _mm256_andnot_si256(leaf, inter));
-            let adv = _mm256_andnot_si256(_mm256_or_si256(stop, push), live);
-            let mut exit = zi;
-            if mask_i(push) != 0 {
-                // PUSH: the stack write where `tc_max < h`, per lane.
-                let keep = _mm256_castps_si256(_mm256_cmp_ps::<_CMP_LT_OQ>(tc_max, s.h));
-                for l in bits(mask_i(_mm256_and_si256(push, keep))) {
-                    let k = l * SD + li(&mut s.scale)[l] as usize;
-                    stack_node[k] = li(&mut s.parent)[l];
-                    stack_tmax[k] = lf(&mut s.t_max)[l];
-                }
-                let child = if A::ABSOLUTE {
-                    let hi_slot = _mm256_add_epi32(slot, one);
-                    let hi = _mm256_mask_i32gather_epi32::<4>(zi, base, hi_slot, push);
-                    _mm256_add_epi32(hi, _mm256_xor_si256(shift, _mm256_set1_epi32(7)))
-                } else {
-                    child_relative(base, &s, cm, push)
-                };
-                let halfs = _mm256_mul_ps(s.se, half);
-                let mut idx_push = zi;
-                let pf = _mm256_castsi256_ps(push);
-                for a in 0..3 {
-                    let tcen = _mm256_add_ps(_mm256_mul_ps(halfs, s.coef[a]), tc[a]);
-                    let up = _mm256_cmp_ps::<_CMP_GT_OQ>(tcen, s.t_min);
-                    let b = _mm256_and_si256(_mm256_castps_si256(up), _mm256_set1_epi32(1 << a));
-                    idx_push = _mm256_or_si256(idx_push, b);
-                    let pushed = _mm256_add_ps(s.pos[a], _mm256_and_ps(up, halfs));
-                    s.pos[a] = _mm256_blendv_ps(s.pos[a], pushed, pf);
-                }
-                s.idx = _mm256_blendv_epi8(s.idx, idx_push, push);
-                s.h = _mm256_blendv_ps(s.h, tc_max, pf);
-                s.scale = _mm256_add_epi32(s.scale, push);
-                s.se = _mm256_blendv_ps(s.se, halfs, pf);
-                s.t_max = _mm256_blendv_ps(s.t_max, tv_max, pf);
-                s.parent = _mm256_blendv_epi8(s.parent, child, push);
-                s.desc = _mm256_andnot_si256(push, s.desc);
+            let halfs = _mm256_mul_ps(s.se, half);
+            let mut idx_push = zi;
+            let pf = _mm256_castsi256_ps(push);
+            for a in 0..3 {
+                let tcen = _mm256_add_ps(_mm256_mul_ps(halfs, s.coef[a]), tc[a]);
+                let up = _mm256_cmp_ps::<_CMP_GT_OQ>(tcen, s.t_min);
+                let b = _mm256_and_si256(_mm256_castps_si256(up), _mm256_set1_epi32(1 << a));
+                idx_push = _mm256_or_si256(idx_push, b);
+                let pushed = _mm256_add_ps(s.pos[a], _mm256_and_ps(up, halfs));
+                s.pos[a] = _mm256_blendv_ps(s.pos[a], pushed, pf);
             }
-            if mask_i(adv) != 0 {
-                // ADVANCE, and the bits that changed (for POP).
-                let af = _mm256_castsi256_ps(adv);
-                let mut step = zi;
-                let mut diff = zi;
+            s.idx = _mm256_blendv_epi8(s.idx, idx_push, push);
+            s.h = _mm256_blendv_ps(s.h, tc_max, pf);
+            s.scale = _mm256_add_epi32(s.scale, push);
+            s.se = _mm256_blendv_ps(s.se, halfs, pf);
+            s.t_max = _mm256_blendv_ps(s.t_max, tv_max, pf);
+            s.parent = _mm256_blendv_epi8(s.parent, child, push);
+            s.desc = _mm256_andnot_si256(push, s.desc);
+        }
+        if mask_i(adv) != 0 {
+            // ADVANCE, and the bits that changed (for POP).
+            let af = _mm256_castsi256_ps(adv);
+            let mut step = zi;
+            let mut diff = zi;
+            for a in 0..3 {
+                let st = _mm256_cmp_ps::<_CMP_LE_OQ>(tc[a], tc_max);
+                let b = _mm256_and_si256(_mm256_castps_si256(st), _mm256_set1_epi32(1 << a));
+                step = _mm256_or_si256(step, b);
+                let moved = _mm256_sub_ps(s.pos[a], _mm256_and_ps(st, s.se));
+                s.pos[a] = _mm256_blendv_ps(s.pos[a], moved, af);
+                let back = _mm256_add_ps(s.pos[a], s.se);
+                let x = _mm256_xor_si256(_mm256_castps_si256(s.pos[a]), _mm256_castps_si256(back));
+                diff = _mm256_or_si256(diff, _mm256_and_si256(x, _mm256_castps_si256(st)));
+            }
+            s.t_min = _mm256_blendv_ps(s.t_min, tc_max, af);
+            let idx_adv = _mm256_xor_si256(s.idx, step);
+            s.idx = _mm256_blendv_epi8(s.idx, idx_adv, adv);
+            let pop =
+                _mm256_andnot_si256(_mm256_cmpeq_epi32(_mm256_and_si256(idx_adv, step), zi), adv);
+            if mask_i(pop) != 0 {
+                // POP: the highest differing bit is the exponent of `diff`
+                // as a float (exact below 2^24; from there on the scale is
+                // past S_MAX either way).
+                let e = _mm256_castps_si256(_mm256_cvtepi32_ps(diff));
+                let scale = _mm256_sub_epi32(_mm256_srli_epi32::<23>(e), _mm256_set1_epi32(127));
+                exit =
+                    _mm256_and_si256(pop, _mm256_cmpgt_epi32(scale, _mm256_set1_epi32(S_MAX - 1)));
+                let ok = _mm256_andnot_si256(exit, pop);
+                let okf = _mm256_castsi256_ps(ok);
+                let sidx = _mm256_add_epi32(lane_base, scale);
+                s.parent =
+                    _mm256_mask_i32gather_epi32::<4>(s.parent, stack_node.as_ptr(), sidx, ok);
+                s.t_max = _mm256_mask_i32gather_ps::<4>(s.t_max, stack_tmax.as_ptr(), sidx, okf);
                 for a in 0..3 {
-                    let st = _mm256_cmp_ps::<_CMP_LE_OQ>(tc[a], tc_max);
-                    let b = _mm256_and_si256(_mm256_castps_si256(st), _mm256_set1_epi32(1 << a));
-                    step = _mm256_or_si256(step, b);
-                    let moved = _mm256_sub_ps(s.pos[a], _mm256_and_ps(st, s.se));
-                    s.pos[a] = _mm256_blendv_ps(s.pos[a], moved, af);
-                    let back = _mm256_add_ps(s.pos[a], s.se);
-                    let x =
-                        _mm256_xor_si256(_mm256_castps_si256(s.pos[a]), _mm256_castps_si256(back));
-                    diff = _mm256_or_si256(diff, _mm256_and_si256(x, _mm256_castps_si256(st)));
+                    let sh = _mm256_srlv_epi32(_mm256_castps_si256(s.pos[a]), scale);
+                    let rounded = _mm256_castsi256_ps(_mm256_sllv_epi32(sh, scale));
+                    s.pos[a] = _mm256_blendv_ps(s.pos[a], rounded, okf);
                 }
-                s.t_min = _mm256_blendv_ps(s.t_min, tc_max, af);
-                let idx_adv = _mm256_xor_si256(s.idx, step);
-                s.idx = _mm256_blendv_epi8(s.idx, idx_adv, adv);
-                let pop = _mm256_andnot_si256(
-                    _mm256_cmpeq_epi32(_mm256_and_si256(idx_adv, step), zi),
-                    adv,
-                );
-                if mask_i(pop) != 0 {
-                    // POP: the highest differing bit is the exponent of `diff`
-                    // as a float (exact below 2^24; from there on the scale is
-                    // past S_MAX either way).
-                    let e = _mm256_castps_si256(_mm256_cvtepi32_ps(diff));
-                    let scale =
-                        _mm256_sub_epi32(_mm256_srli_epi32::<23>(e), _mm256_set1_epi32(127));
-                    exit = _mm256_and_si256(
-                        pop,
-                        _mm256_cmpgt_epi32(scale, _mm256_set1_epi32(S_MAX - 1)),
-                    );
-                    let ok = _mm256_andnot_si256(exit, pop);
-                    let okf = _mm256_castsi256_ps(ok);
-                    let sidx = _mm256_add_epi32(lane_base, scale);
-                    s.parent =
-                        _mm256_mask_i32gather_epi32::<4>(s.parent, stack_node.as_ptr(), sidx, ok);
-                    s.t_max =
-                        _mm256_mask_i32gather_ps::<4>(s.t_max, stack_tmax.as_ptr(), sidx, okf);
-                    for a in 0..3 {
-                        let sh = _mm256_srlv_epi32(_mm256_castps_si256(s.pos[a]), scale);
-                        let rounded = _mm256_castsi256_ps(_mm256_sllv_epi32(sh, scale));
-                        s.pos[a] = _mm256_blendv_ps(s.pos[a], rounded, okf);
+                let se = _mm256_slli_epi32::<23>(_mm256_add_epi32(
+                    scale,
+                    _mm256_set1_epi32(127 - S_MAX),
+                ));
+                s.scale = _mm256_blendv_epi8(s.scale, scale, ok);
+                s.se = _mm256_blendv_ps(s.se, _mm256_castsi256_ps(se), okf);
+                s.idx = _mm256_blendv_epi8(s.idx, pop_idx(&s.pos, scale), ok);
+                s.h = _mm256_andnot_ps(okf, s.h);
+                s.desc = _mm256_andnot_si256(ok, s.desc);
+            }
+        }
+        // Lanes whose ray ended this iteration: the answer, then the next ray.
+        let done = mask_i(_mm256_or_si256(_mm256_or_si256(capped, stop), exit));
+        if done != 0 {
+            let (capped_m, stop_m, leaf_m) = (mask_i(capped), mask_i(stop), mask_i(leaf));
+            for l in bits(done) {
+                let i = q.ray[l];
+                let it = li(&mut s.iters)[l] as u32;
+                out[i] = if capped_m >> l & 1 != 0 {
+                    CastHit::miss(it - 1, true)
+                } else if stop_m >> l & 1 != 0 {
+                    let stop = s.stop(l, leaf_m >> l & 1 != 0);
+                    match &q.starts[l] {
+                        Some(st) => finish::<f32, A>(nodes, depth, o[i], d[i], p, st, &stop),
+                        None => CastHit::miss(it, false),
                     }
-                    let se = _mm256_slli_epi32::<23>(_mm256_add_epi32(
-                        scale,
-                        _mm256_set1_epi32(127 - S_MAX),
-                    ));
-                    s.scale = _mm256_blendv_epi8(s.scale, scale, ok);
-                    s.se = _mm256_blendv_ps(s.se, _mm256_castsi256_ps(se), okf);
-                    s.idx = _mm256_blendv_epi8(s.idx, pop_idx(&s.pos, scale), ok);
-                    s.h = _mm256_andnot_ps(okf, s.h);
-                    s.desc = _mm256_andnot_si256(ok, s.desc);
-                }
-            }
-            // Lanes whose ray ended this iteration: the answer, then the next ray.
-            let done = mask_i(_mm256_or_si256(_mm256_or_si256(capped, stop), exit));
-            if done != 0 {
-                let (capped_m, stop_m, leaf_m) = (mask_i(capped), mask_i(stop), mask_i(leaf));
-                for l in bits(done) {
-                    let i = q.ray[l];
-                    let it = li(&mut s.iters)[l] as u32;
-                    out[i] = if capped_m >> l & 1 != 0 {
-                        CastHit::miss(it - 1, true)
-                    } else if stop_m >> l & 1 != 0 {
-                        let stop = s.stop(l, leaf_m >> l & 1 != 0);
-                        match &q.starts[l] {
-                            Some(st) => finish::<f32, A>(nodes, depth, o[i], d[i], p, st, &stop),
-                            None => CastHit::miss(it, false),
-                        }
-                    } else {
-                        CastHit::miss(it, false)
-                    };
-                    q.refill(&mut s, l, p, out);
-                }
+                } else {
+                    CastHit::miss(it, false)
+                };
+                q.refill(s, l, p, out);
             }
         }
     }
