@@ -17,6 +17,7 @@ pub mod dag;
 pub mod dxt;
 pub mod gpu;
 pub mod mesh;
+pub mod node_order;
 pub mod octree;
 pub mod outputs;
 pub mod packet;
