@@ -10,6 +10,7 @@ pub mod batch;
 pub mod beam;
 pub mod cast;
 pub mod cast_lanes;
+pub mod cast_real;
 pub mod cast_sse;
 pub mod checks;
 pub mod contour;
