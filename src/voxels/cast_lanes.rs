@@ -389,6 +389,7 @@ mod avx2 {
     /// masks), then the answers of the lanes whose ray ended and their refill.
     #[inline]
     #[target_feature(enable = "avx2")]
+    #[allow(clippy::needless_range_loop)] // per-axis loops over lane vectors, as the scalar cast
     unsafe fn step<A: Addressing>(g: &mut Group, k: &Consts, out: &mut [CastHit<f32>]) {
         let (nodes, depth, p) = (k.nodes, k.depth, k.p);
         let base = nodes.as_ptr() as *const i32;
@@ -450,7 +451,7 @@ mod avx2 {
                 let hi = _mm256_mask_i32gather_epi32::<4>(zi, base, hi_slot, push);
                 _mm256_add_epi32(hi, _mm256_xor_si256(shift, _mm256_set1_epi32(7)))
             } else {
-                child_relative(base, &s, cm, push)
+                child_relative(base, s, cm, push)
             };
             let halfs = _mm256_mul_ps(s.se, half);
             let mut idx_push = zi;
