@@ -2,7 +2,7 @@
 """The SCENES.md Cornell box with three spheres in Mitsuba 3 (the issue's
 independent renderer), same settings as hotpath's pathtrace: `path`
 integrator with 64 bounces (Mitsuba max_depth 65: depth 1 is emission seen
-directly), Russian roulette from depth 5, box filter, independent sampler.
+directly), Russian roulette from depth 5, box filter, independent sampler (--sampler picks another).
 
     pip install mitsuba==3.9.1   # plus Debian's libllvm19 for the llvm variant
     DRJIT_LIBLLVM_PATH=/usr/lib/x86_64-linux-gnu/libLLVM-19.so \
@@ -37,7 +37,7 @@ def quad(corner, u, v, bsdf, emitter=None):
     return d
 
 
-def scene(size, spp, diffuse):
+def scene(size, spp, diffuse, sampler="independent"):
     white = {"type": "twosided", "bsdf": {"type": "diffuse", "reflectance": rgb([0.73, 0.73, 0.73])}}
     red = {"type": "twosided", "bsdf": {"type": "diffuse", "reflectance": rgb([0.65, 0.05, 0.05])}}
     green = {"type": "twosided", "bsdf": {"type": "diffuse", "reflectance": rgb([0.12, 0.45, 0.15])}}
@@ -61,7 +61,7 @@ def scene(size, spp, diffuse):
             "fov_axis": "y",
             "to_world": mi.ScalarTransform4f().look_at(origin=[0, 0, 3.5], target=[0, 0, 0], up=[0, 1, 0]),
             "film": {"type": "hdrfilm", "width": size, "height": size, "rfilter": {"type": "box"}, "pixel_format": "rgb"},
-            "sampler": {"type": "independent", "sample_count": spp},
+            "sampler": {"type": sampler, "sample_count": spp},
         },
         "left": quad([-1, -1, -1], [0, 0, 2], [0, 2, 0], red),
         "right": quad([1, -1, -1], [0, 2, 0], [0, 0, 2], green),
@@ -84,10 +84,11 @@ def main():
     ap.add_argument("--repeat", type=int, default=1, help="time the render this many times")
     ap.add_argument("--diffuse", action="store_true")
     ap.add_argument("--variant", default="llvm_ad_rgb")
+    ap.add_argument("--sampler", default="independent", help="independent, stratified, multijitter, ldsampler, orthogonal")
     ap.add_argument("--out", required=True)
     a = ap.parse_args()
     mi.set_variant(a.variant)
-    sc = mi.load_dict(scene(a.size, a.spp, a.diffuse))
+    sc = mi.load_dict(scene(a.size, a.spp, a.diffuse, a.sampler))
     for r in range(a.repeat):
         t, c = time.perf_counter(), time.process_time()
         acc = None

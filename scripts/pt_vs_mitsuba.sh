@@ -7,6 +7,9 @@
 # GNU time). Equal error: our images are bit-identical across tracers and
 # match Mitsuba's 64-spp RMSE at 62-64 spp (docs/PERF.md), so the CPU-second
 # ratio at 64 spp is the equal-error time ratio up to that factor.
+# SAMPLERS (default "independent multijitter") picks Mitsuba's samplers:
+# multijitter was its lowest 64-spp RMSE in docs/PERF.md (fifth session), so
+# the fair ratio is against that; TRACERS (default "wavefront packet scalar").
 #
 #   pip install mitsuba==3.9.1        # + libLLVM 19 for the llvm variant
 #   ROUNDS=2 bash scripts/pt_vs_mitsuba.sh [target/release/hpjudge]
@@ -15,13 +18,17 @@ BIN=${1:-target/release/hpjudge}
 ROUNDS=${ROUNDS:-2}
 SIZE=${SIZE:-512}
 SPP=${SPP:-64}
+SAMPLERS=${SAMPLERS:-independent multijitter}
+TRACERS=${TRACERS:-wavefront packet scalar}
 export DRJIT_LIBLLVM_PATH=${DRJIT_LIBLLVM_PATH:-/usr/lib/x86_64-linux-gnu/libLLVM-19.so}
 out=$(mktemp -d)
 trap 'rm -rf "$out"' EXIT
 for r in $(seq "$ROUNDS"); do
-  python3 scripts/mitsuba_cornell.py --spp "$SPP" --size "$SIZE" --seed 1 --repeat 2 \
-    --out "$out/mi.npy" | tail -1 | sed "s/^/round $r mitsuba /"
-  for tr in wavefront packet scalar; do
+  for smp in $SAMPLERS; do
+    python3 scripts/mitsuba_cornell.py --spp "$SPP" --size "$SIZE" --seed 1 --repeat 2 \
+      --sampler "$smp" --out "$out/mi.npy" | tail -1 | sed "s/^/round $r mitsuba $smp /"
+  done
+  for tr in $TRACERS; do
     /usr/bin/time -f "%e %U %S" -o "$out/t" "$BIN" render TESTS/scenes/cornell_box.yaml \
       --set width="$SIZE" --set height="$SIZE" --set spp="$SPP" --set seed=1 \
       --set tracer="$tr" --out "$out/$tr" >/dev/null 2>&1

@@ -32,7 +32,7 @@ use glam::Vec3A;
 use super::bsdf::{Frame, Material};
 use super::packed::Packed;
 use super::shapes::{spawn_origin, Shape};
-use super::soa8::Soa8;
+use super::soa8::{Isa, Soa8};
 use super::trace8::trace_paths8;
 use super::wave8::trace_paths_wave8;
 use crate::budget::{bytes_for, MemBudget};
@@ -170,7 +170,10 @@ impl Scene {
             lights,
             environment: env,
             packed: Packed::new(&objects.iter().map(|o| o.0).collect::<Vec<_>>()),
-            soa: Soa8::new(&objects.iter().map(|o| o.0).collect::<Vec<_>>(), false),
+            soa: Soa8::new(
+                &objects.iter().map(|o| o.0).collect::<Vec<_>>(),
+                Isa::detect(),
+            ),
         })
     }
 

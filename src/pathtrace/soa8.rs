@@ -1,8 +1,9 @@
 //! Eight rays at a time against every shape (SIMD across rays): the
 //! shapes as structures of arrays, each shape broadcast to the eight lanes
 //! of a ray packet. AVX2 (`std::arch`, chosen at run time with
-//! `is_x86_feature_detected!`, never `-C target-cpu=native`) or a portable
-//! lane loop elsewhere. Both run the same IEEE operations in the same order
+//! `is_x86_feature_detected!`, never `-C target-cpu=native`; the same
+//! AVX2 code on an AVX-512 CPU: see `avx2::trace`) or a portable lane
+//! loop elsewhere. Both run the same IEEE operations in the same order
 //! as the per-ray [`super::packed::Packed`] test (the scalar path's
 //! intersection), lane by lane, so a packet render equals the scalar one
 //! bit for bit; tests below and the case `pt_packet_equals_scalar` hold
@@ -45,26 +46,52 @@ pub struct Soa8 {
     /// `e_i`, `e_j` multiples (the Cornell box walls): the AVX2 test then
     /// skips the products with zero components (see `avx2::quad_axis`).
     qaxis: Vec<Option<[usize; 3]>>,
-    avx2: bool,
+    isa: Isa,
 }
 
-/// Which instruction set runs the packet tests on this machine.
-pub fn isa() -> &'static str {
-    if has_avx2() {
-        "avx2"
-    } else {
-        "portable"
-    }
+/// The instruction sets the lane code is compiled for, chosen at run time,
+/// narrowest first.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, PartialOrd, Ord)]
+pub enum Isa {
+    /// Plain lane loops (any CPU).
+    #[default]
+    Portable,
+    /// AVX2 + FMA (FMA enabled but never formed: no `mul_add`).
+    Avx2,
+    /// AVX2 + FMA with AVX-512F/VL/DQ/BW enabled for the wavefront loop
+    /// (32 vector registers, still eight lanes, the same IEEE operations);
+    /// the shape tests stay AVX2 code.
+    Avx512,
 }
 
-fn has_avx2() -> bool {
-    #[cfg(target_arch = "x86_64")]
-    {
-        std::arch::is_x86_feature_detected!("avx2")
+impl Isa {
+    /// The widest set this CPU has.
+    pub fn detect() -> Isa {
+        #[cfg(target_arch = "x86_64")]
+        {
+            use std::arch::is_x86_feature_detected as has;
+            if has!("avx2") && has!("fma") {
+                let avx512 =
+                    has!("avx512f") && has!("avx512vl") && has!("avx512dq") && has!("avx512bw");
+                return if avx512 { Isa::Avx512 } else { Isa::Avx2 };
+            }
+        }
+        Isa::Portable
     }
-    #[cfg(not(target_arch = "x86_64"))]
-    {
-        false
+
+    /// Every set this CPU can run, narrowest first (for the referee tests).
+    pub fn available() -> Vec<Isa> {
+        let all = [Isa::Portable, Isa::Avx2, Isa::Avx512];
+        all.into_iter().filter(|&i| i <= Isa::detect()).collect()
+    }
+
+    /// Its name in reports.
+    pub fn name(self) -> &'static str {
+        match self {
+            Isa::Portable => "portable",
+            Isa::Avx2 => "avx2",
+            Isa::Avx512 => "avx512",
+        }
     }
 }
 
@@ -75,10 +102,11 @@ pub fn lane(mask: u8, k: usize) -> bool {
 }
 
 impl Soa8 {
-    /// The shapes in SoA form; `portable` forces the lane loop (tests).
-    pub fn new(shapes: &[Shape], portable: bool) -> Soa8 {
+    /// The shapes in SoA form, tested with `isa` (at most
+    /// [`Isa::detect`]; the tests pass narrower ones).
+    pub fn new(shapes: &[Shape], isa: Isa) -> Soa8 {
         let mut s = Soa8 {
-            avx2: !portable && has_avx2(),
+            isa: isa.min(Isa::detect()),
             ..Soa8::default()
         };
         for (i, sh) in shapes.iter().enumerate() {
@@ -113,6 +141,11 @@ impl Soa8 {
         s
     }
 
+    /// The instruction set of its tests (and of the wavefront loop over it).
+    pub fn isa(&self) -> Isa {
+        self.isa
+    }
+
     /// Nearest hit of each active lane (`active` bit k = lane k) in
     /// (0, inf): `(t, shape index)`, index `u32::MAX` on a miss.
     pub fn intersect8(&self, r: &Rays8, active: u8) -> ([f32; LANES], [u32; LANES]) {
@@ -139,10 +172,11 @@ impl Soa8 {
         id: &mut [u32; LANES],
         any: bool,
     ) -> u8 {
+        // SAFETY: `Soa8::new` keeps `isa` within what this CPU has.
         #[cfg(target_arch = "x86_64")]
-        if self.avx2 {
-            // SAFETY: AVX2 was detected at run time (`Soa8::new`).
-            return unsafe { avx2::trace(self, r, active, t, id, any) };
+        match self.isa {
+            Isa::Avx512 | Isa::Avx2 => return unsafe { avx2::trace(self, r, active, t, id, any) },
+            Isa::Portable => {}
         }
         self.trace_portable(r, active, t, id, any)
     }
@@ -372,7 +406,10 @@ mod avx2 {
         (t, ok)
     }
 
-    /// The portable loop's operations on 8 lanes at once.
+    /// The portable loop's operations on 8 lanes at once. Also the test
+    /// under [`super::Isa::Avx512`]: compiled with AVX-512VL it was slower
+    /// (mask-register blends: +0.15 CPU-s on a 1.1 CPU-s 256x256 64-spp
+    /// render on Zen 4, one run, interleaved).
     ///
     /// # Safety
     /// The CPU must have AVX2 (checked by the caller).
@@ -443,15 +480,16 @@ mod tests {
     use crate::rng::rand_f32;
     use glam::Vec3A;
 
-    /// Both packet implementations equal the per-ray `Packed` test bit for
-    /// bit (t and shape), for nearest hits and shadow tests, with lanes off.
+    /// Every packet implementation this CPU runs (portable, AVX2) equals the per-ray `Packed` test bit for bit (t and shape), for
+    /// nearest hits and shadow tests, with lanes off.
     #[test]
     #[allow(clippy::needless_range_loop)]
     fn packets_equal_the_per_ray_test_bit_for_bit() {
         let shapes = crate::pathtrace::packed::cornell_shapes();
         let p = Packed::new(&shapes);
-        for portable in [false, true] {
-            let s = Soa8::new(&shapes, portable);
+        for isa in Isa::available() {
+            let s = Soa8::new(&shapes, isa);
+            assert_eq!(s.isa(), isa);
             let mut hits = 0;
             for i in 0..20_000u32 {
                 let mut r = Rays8::default();
