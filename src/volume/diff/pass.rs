@@ -13,17 +13,22 @@ use super::super::fused_lanes::{query_of, LaneMarch, LANES};
 use super::super::integrate::Integrated;
 use super::super::sample::{walk_lattice, Samples};
 use super::field_grad::{param_count, param_index};
+use super::lanes::{self, LaneGrad, Scratch};
 use super::reduce::{push_rec, reduce_sorted, scatter_dense, sum_chunks, Unit, UNIT_RAYS};
 use super::walk::{ray_grads, replay_fused, replay_fused_lanes, replay_unfused, Ctx};
 use super::{DiffOptions, Grads, Ksum, Rec, Reduce};
 
 /// The backward pass over the given forward state (module doc).
 #[allow(clippy::too_many_arguments)]
+/// `lane_backward`: the fused chain walks rays backward 8 at a time in
+/// AVX2 lanes where [`LaneGrad`] covers the pass (else, and with `false`,
+/// the scalar walk, the referee).
 pub(super) fn backward<F: Real>(
     cx: &Ctx<F>,
     buffers: Option<(&Samples<F>, &Integrated<F>)>,
     opt: &DiffOptions,
     budget: &MemBudget,
+    lane_backward: bool,
 ) -> Result<Grads<F>> {
     let n = cx.rays.len();
     if cx.up.rgb.len() != n
@@ -120,6 +125,11 @@ pub(super) fn backward<F: Real>(
     // they cover the medium (bit-identical records).
     let lanes = LaneMarch::new(cx.medium, cx.m, cx.occ).filter(|_| buffers.is_none());
     let query = query_of(cx.medium);
+    // ... and walk them backward in the same lanes (bit-identical gradients).
+    let lane_grad = match (lane_backward, &packed) {
+        (true, Some(p)) if !per_sample => LaneGrad::new(cx, lanes).map(|lg| (lg, *p)),
+        _ => None,
+    };
     let out_units: Vec<Unit<F>> = par_collect("f_diff", units.len(), |ui| {
         let (a, b) = units[ui];
         let mut u = Unit {
@@ -145,6 +155,25 @@ pub(super) fn backward<F: Real>(
             per_sample: vec![],
             samples: 0,
         };
+        if let Some((lg, p)) = &lane_grad {
+            let mut sc = Scratch::default();
+            for first in (a..b).step_by(LANES) {
+                let len = LANES.min(b - first);
+                let cams = lanes::group(cx, lg, &query, first, len, &mut sc);
+                for (l, cam) in cams.into_iter().take(len).enumerate() {
+                    u.samples += sc.samples(l) as u64;
+                    sc.cells(l, !sorted, lg.ds(), |c, v| {
+                        if sorted {
+                            push_rec(p, Some(c), v, &mut u.pk_recs);
+                        } else {
+                            scatter_dense(p, Some(c), v, &mut u.pk_dense);
+                        }
+                    });
+                    u.cam.push(cam);
+                }
+            }
+            return u;
+        }
         let mut recs = Vec::new();
         let mut lane_recs: [Vec<Rec<F>>; LANES] = Default::default();
         let mut lane_log_t = [F::zero(); LANES];
