@@ -238,15 +238,62 @@ mod avx2 {
         a
     }
 
-    /// `(((0 + g0 c0) + g1 c1) + g2 c2) + g3 c3` of one corner, gathered
-    /// per channel where `m` is set (`grid_grad`'s `dot`).
+    /// The 8 x 8 transpose: lane `l` of output `j` is element `j` of `r[l]`.
     #[inline]
     #[target_feature(enable = "avx2")]
-    unsafe fn corner(d: *const f32, idx: __m256i, m: __m256, g4: &[__m256; 4]) -> __m256 {
-        let mut v = _mm256_setzero_ps();
-        for (ch, g) in g4.iter().enumerate() {
-            let c = _mm256_mask_i32gather_ps::<4>(_mm256_setzero_ps(), d.add(ch), idx, m);
-            v = _mm256_add_ps(v, _mm256_mul_ps(*g, c));
+    unsafe fn transpose8(r: [__m256; 8]) -> [__m256; 8] {
+        let t: [__m256; 8] = std::array::from_fn(|i| {
+            let (a, b) = (r[i & !1], r[i | 1]);
+            if i & 1 == 0 {
+                _mm256_unpacklo_ps(a, b)
+            } else {
+                _mm256_unpackhi_ps(a, b)
+            }
+        });
+        // u[q]: elements j = q % 4 (low half) and j + 4 (high half) of
+        // rows 0..4 (q < 4) or 4..8 (q >= 4).
+        let u: [__m256; 8] = std::array::from_fn(|q| {
+            let (base, j) = (4 * (q / 4), q % 4);
+            let (a, b) = (t[base + (j >> 1)], t[base + 2 + (j >> 1)]);
+            if j & 1 == 0 {
+                _mm256_shuffle_ps::<0x44>(a, b)
+            } else {
+                _mm256_shuffle_ps::<0xEE>(a, b)
+            }
+        });
+        std::array::from_fn(|j| {
+            if j < 4 {
+                _mm256_permute2f128_ps::<0x20>(u[j], u[j + 4])
+            } else {
+                _mm256_permute2f128_ps::<0x31>(u[j - 4], u[j])
+            }
+        })
+    }
+
+    /// `grid_grad`'s `dot` of the eight corners of each lane's cell,
+    /// `(((0 + g0 c0) + g1 c1) + g2 c2) + g3 c3` per corner, from four
+    /// 32-byte rows (two corners x four channels) per lane, transposed.
+    /// `idx` must be a cell of the grid in every lane (0 where unused).
+    #[inline]
+    #[target_feature(enable = "avx2")]
+    unsafe fn corners(
+        d: *const f32,
+        idx: [i32; LANES],
+        rows: [i32; 4],
+        g4: &[__m256; 4],
+    ) -> [__m256; 8] {
+        let mut v = [_mm256_setzero_ps(); 8];
+        for (ri, off) in rows.into_iter().enumerate() {
+            let r: [__m256; 8] =
+                std::array::from_fn(|l| _mm256_loadu_ps(d.add((idx[l] + off) as usize)));
+            let t = transpose8(r);
+            for half in 0..2 {
+                let mut acc = _mm256_setzero_ps();
+                for (ch, g) in g4.iter().enumerate() {
+                    acc = _mm256_add_ps(acc, _mm256_mul_ps(*g, t[4 * half + ch]));
+                }
+                v[2 * ri + half] = acc;
+            }
         }
         v
     }
@@ -297,9 +344,7 @@ mod avx2 {
         let big = _mm256_set1_ps((1u32 << 30) as f32);
         let sign = _mm256_set1_ps(-0.0);
         let dt = _mm256_set1_ps(geo.dt);
-        let offs: [i32; 8] = std::array::from_fn(|c| {
-            (c & 1) as i32 * 4 + (c >> 1 & 1) as i32 * geo.sy + (c >> 2 & 1) as i32 * geo.sz
-        });
+        let rows = [0, geo.sy, geo.sz, geo.sz + geo.sy];
         let data = geo.data.as_ptr();
         let steps = sc.steps.len();
         sc.emit.clear();
@@ -372,14 +417,8 @@ mod avx2 {
             let g4 = [dsigma, dcol[0], dcol[1], dcol[2]];
             let mut gx = [zero; 3];
             if in_bits != 0 {
-                let v: [__m256; 8] = std::array::from_fn(|c| {
-                    corner(
-                        data,
-                        _mm256_add_epi32(idx, _mm256_set1_epi32(offs[c])),
-                        inside,
-                        &g4,
-                    )
-                });
+                let safe = sti(_mm256_and_si256(idx, _mm256_castps_si256(inside)));
+                let v = corners(data, safe, rows, &g4);
                 let [fx, fy, fz] = f;
                 let (ex, ey, ez) = (
                     _mm256_sub_ps(one, fx),

@@ -14,7 +14,7 @@ use super::super::integrate::Integrated;
 use super::super::sample::{walk_lattice, Samples};
 use super::field_grad::{param_count, param_index};
 use super::lanes::{self, LaneGrad, Scratch};
-use super::reduce::{push_rec, reduce_sorted, scatter_dense, sum_chunks, Unit, UNIT_RAYS};
+use super::reduce::{push_rec, reduce_sorted, scatter_dense, sum_chunks, Dense, Unit, UNIT_RAYS};
 use super::walk::{ray_grads, replay_fused, replay_fused_lanes, replay_unfused, Ctx};
 use super::{DiffOptions, Grads, Ksum, Rec, Reduce};
 
@@ -140,18 +140,23 @@ pub(super) fn backward<F: Real>(
             col_recs: vec![],
             pk_recs: vec![],
             sig_dense: match (sorted, packed, sig_grid) {
-                (false, None, Some(g)) => vec![F::zero(); g.data.len()],
-                _ => vec![],
+                (false, None, Some(g)) => Dense::grid::<1>(g),
+                _ => Dense::new(0, 1),
             },
             col_dense: match (sorted, packed, col_grid) {
-                (false, None, Some(g)) => vec![F::zero(); g.data.len()],
-                _ => vec![],
+                (false, None, Some(g)) => Dense::grid::<3>(g),
+                _ => Dense::new(0, 1),
             },
             pk_dense: match (sorted, packed) {
-                (false, Some(p)) => vec![F::zero(); p.data.len()],
-                _ => vec![],
+                (false, Some(p)) => Dense::grid::<4>(p),
+                _ => Dense::new(0, 1),
             },
-            hash_dense: vec![F::zero(); hash.map_or(0, |h| h.param_count())],
+            hash_dense: {
+                let n = hash.map_or(0, |h| h.param_count());
+                let mut d = Dense::new(n, n);
+                d.touch_all();
+                d
+            },
             per_sample: vec![],
             samples: 0,
         };
@@ -200,7 +205,7 @@ pub(super) fn backward<F: Real>(
             // Records go out back to front; the sorted path wants (ray,
             // sample) order, so a ray's records are reversed after its walk.
             let (s0, c0, p0) = (u.sig_recs.len(), u.col_recs.len(), u.pk_recs.len());
-            let sink = hash.is_some().then_some(&mut u.hash_dense[..]);
+            let sink = hash.is_some().then_some(&mut u.hash_dense.data[..]);
             let cam = ray_grads(cx, r, &recs, log_tn, sink, |i, e| {
                 if let Some(p) = param_index(cx.field, e.x) {
                     u.param[p].add(e.dsigma);
@@ -280,7 +285,7 @@ pub(super) fn backward<F: Real>(
                 let parts = out_units.iter_mut().map(|u| std::mem::take(&mut u.pk_recs));
                 reduce_sorted(p, parts.collect())
             } else {
-                let parts: Vec<&[F]> = out_units.iter().map(|u| &u.pk_dense[..]).collect();
+                let parts: Vec<&Dense<F>> = out_units.iter().map(|u| &u.pk_dense).collect();
                 sum_chunks(&parts, p.data.len())
             };
             let sig = pk.chunks(4).map(|v| v[0]).collect();
@@ -303,17 +308,17 @@ pub(super) fn backward<F: Real>(
         ),
         (None, false) => (
             sig_grid.map(|g| {
-                let parts: Vec<&[F]> = out_units.iter().map(|u| &u.sig_dense[..]).collect();
+                let parts: Vec<&Dense<F>> = out_units.iter().map(|u| &u.sig_dense).collect();
                 sum_chunks(&parts, g.data.len())
             }),
             col_grid.map(|g| {
-                let parts: Vec<&[F]> = out_units.iter().map(|u| &u.col_dense[..]).collect();
+                let parts: Vec<&Dense<F>> = out_units.iter().map(|u| &u.col_dense).collect();
                 sum_chunks(&parts, g.data.len())
             }),
         ),
     };
     let dhash = hash.map(|h| {
-        let parts: Vec<&[F]> = out_units.iter().map(|u| &u.hash_dense[..]).collect();
+        let parts: Vec<&Dense<F>> = out_units.iter().map(|u| &u.hash_dense).collect();
         sum_chunks(&parts, h.param_count())
     });
     let (ps_s, ps_c) = split_per_sample(per_sample, &out_units);
