@@ -5,6 +5,7 @@
 //! (f64 rays from K and C2W, face-plane clipping) is [`referee`].
 
 pub mod referee;
+pub mod referee_pinhole;
 
 use crate::budget::{bytes_for, MemBudget};
 use crate::camera::Camera;
@@ -299,6 +300,11 @@ pub fn clip_list<F: Real>(
         hit.push((c > a) as u8);
     }
     (t0, t1, hit)
+}
+
+/// [`clip_list`] in `F`, as outputs t0, t1, hit.
+pub fn clip_list_in<F: Real>(rays: &[[f64; 6]], b: &Aabb, near: f64, far: f64) -> Result<Outputs> {
+    clip_list_outputs(clip_list::<F>(rays, b, near, far))
 }
 
 /// Outputs t0, t1, hit of a listed clip ([`clip_list`] or its referee).

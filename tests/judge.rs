@@ -2,36 +2,15 @@
 //! judge's self-test and on bad inputs, each of which must get a clear
 //! error naming what was wrong and exit code 2.
 
+mod common;
+
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
-/// The binary under test; `HPJUDGE_IT_BIN` points these tests at another
-/// build (how a fix is shown to make a test pass that failed before it).
-fn exe() -> PathBuf {
-    std::env::var_os("HPJUDGE_IT_BIN")
-        .map(PathBuf::from)
-        .unwrap_or_else(|| PathBuf::from(env!("CARGO_BIN_EXE_hpjudge")))
-}
-
-fn hpjudge() -> Command {
-    let mut c = Command::new(exe());
-    c.current_dir(env!("CARGO_MANIFEST_DIR")).env_remove("CI");
-    c
-}
+use common::{exe, hpjudge, run_cmd, run_out, text};
 
 fn tmp(name: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("hpjudge-it-{}-{name}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&d);
-    std::fs::create_dir_all(&d).unwrap();
-    d
-}
-
-fn text(o: &Output) -> String {
-    format!(
-        "{}{}",
-        String::from_utf8_lossy(&o.stdout),
-        String::from_utf8_lossy(&o.stderr)
-    )
+    common::tmp_in("it", name)
 }
 
 /// Writes a manifest (with a copy of the project's thresholds beside it).
@@ -51,13 +30,7 @@ fn manifest(dir: &Path, body: &str) -> PathBuf {
 fn bad_input(body: &str, expect: &[&str]) {
     let d = tmp("bad");
     let m = manifest(&d, body);
-    let o = hpjudge()
-        .args(["run"])
-        .arg(&m)
-        .arg("--out")
-        .arg(d.join("out"))
-        .output()
-        .unwrap();
+    let o = run_out(&m, &d.join("out"), &[]);
     let t = text(&o);
     assert_eq!(o.status.code(), Some(2), "{t}");
     for e in expect {
@@ -72,11 +45,7 @@ fn bad_input(body: &str, expect: &[&str]) {
 #[test]
 fn judge_self_test_gets_every_expected_verdict() {
     let d = tmp("selftest");
-    let o = hpjudge()
-        .args(["run", "TESTS/selftest/manifest.yaml", "--json", "--out"])
-        .arg(&d)
-        .output()
-        .unwrap();
+    let o = run_out("TESTS/selftest/manifest.yaml", &d, &["--json"]);
     assert_eq!(o.status.code(), Some(0), "{}", text(&o));
     let b: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
     let cases = b["cases"].as_array().unwrap();
@@ -96,15 +65,7 @@ fn judge_self_test_gets_every_expected_verdict() {
 #[test]
 fn plain_run_ends_with_the_summary_line_and_writes_junit() {
     let d = tmp("summary");
-    let o = hpjudge()
-        .args([
-            "run",
-            "TESTS/rays/manifest.yaml",
-            "--filter",
-            "rays_clip",
-            "--out",
-        ])
-        .arg(&d)
+    let o = run_cmd("TESTS/rays/manifest.yaml", &d, &["--filter", "rays_clip"])
         .arg("--junit")
         .arg(d.join("junit.xml"))
         .output()
@@ -277,14 +238,7 @@ fn dump_failing_writes_rays_that_render_replays() {
         &d,
         "cases:\n  - id: planted_fail\n    op: rays.generate\n    scene: SCENES/rays_pinhole.yaml\n    set: {width: 8, height: 8}\n    assert:\n      - range: {tensor: t0, min: 100, max: 200}\n",
     );
-    let o = hpjudge()
-        .arg("run")
-        .arg(&m)
-        .arg("--dump-failing")
-        .arg("--out")
-        .arg(d.join("out"))
-        .output()
-        .unwrap();
+    let o = run_out(&m, &d.join("out"), &["--dump-failing"]);
     let t = text(&o);
     assert_eq!(o.status.code(), Some(1), "{t}");
     assert!(
@@ -433,14 +387,7 @@ fn a_npy_header_claiming_108_gb_is_refused_on_every_load_path() {
         &d,
         "cases:\n  - id: g\n    op: selftest.good\n    assert:\n      - max_abs: {a: rgb, b: \"golden:huge.npy\", tol: exact}\n",
     );
-    let o = hpjudge()
-        .arg("run")
-        .arg(&m)
-        .arg("--json")
-        .arg("--out")
-        .arg(d.join("out"))
-        .output()
-        .unwrap();
+    let o = run_out(&m, &d.join("out"), &["--json"]);
     let b: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap_or_default();
     let r = &b["cases"][0]["results"][0];
     assert_eq!(r["verdict"], "ERROR", "golden: {}", text(&o));
@@ -501,11 +448,7 @@ fn alive(pid: u32) -> bool {
 /// 20 s) for its worker; returns the judge and the worker pids.
 fn start_hanging_run(d: &Path) -> (std::process::Child, Vec<u32>) {
     let m = manifest(d, "cases:\n  - id: hang\n    op: selftest.hang\n");
-    let judge = hpjudge()
-        .arg("run")
-        .arg(&m)
-        .arg("--out")
-        .arg(d.join("out"))
+    let judge = run_cmd(&m, &d.join("out"), &[])
         .stdout(std::process::Stdio::null())
         .stderr(std::process::Stdio::null())
         .spawn()
@@ -523,13 +466,7 @@ fn start_hanging_run(d: &Path) -> (std::process::Child, Vec<u32>) {
 fn a_second_run_into_the_same_out_folder_is_refused_naming_the_holder() {
     let d = tmp("lock");
     let (mut first, _) = start_hanging_run(&d);
-    let o = hpjudge()
-        .arg("run")
-        .arg("TESTS/selftest/manifest.yaml")
-        .arg("--out")
-        .arg(d.join("out"))
-        .output()
-        .unwrap();
+    let o = run_out("TESTS/selftest/manifest.yaml", &d.join("out"), &[]);
     let _ = first.kill();
     let _ = first.wait();
     assert_eq!(o.status.code(), Some(2), "{}", text(&o));
@@ -574,6 +511,7 @@ fn a_worker_ends_itself_at_its_own_deadline() {
             case: Box::new(man.cases[0].clone()),
             backend: hotpath::judge::ops::BackendKind::Cpu,
         },
+        scenes: Default::default(),
         thresholds: th,
         perf: Default::default(),
         out: d.join("out"),
@@ -607,11 +545,7 @@ fn a_worker_ends_itself_at_its_own_deadline() {
 fn a_closed_stdout_ends_the_run_quietly_with_an_incomplete_scoreboard() {
     use std::io::BufRead;
     let d = tmp("epipe");
-    let mut judge = hpjudge()
-        .arg("run")
-        .arg("TESTS/selftest/manifest.yaml")
-        .arg("--out")
-        .arg(d.join("out"))
+    let mut judge = run_cmd("TESTS/selftest/manifest.yaml", &d.join("out"), &[])
         .stdout(std::process::Stdio::piped())
         .stderr(std::process::Stdio::piped())
         .spawn()
@@ -639,18 +573,11 @@ fn a_closed_stdout_ends_the_run_quietly_with_an_incomplete_scoreboard() {
 #[test]
 fn a_complete_run_records_counts_and_input_hashes() {
     let d = tmp("hashes");
-    let o = hpjudge()
-        .args([
-            "run",
-            "TESTS/rays/manifest.yaml",
-            "--filter",
-            "rays_clip",
-            "--json",
-            "--out",
-        ])
-        .arg(&d)
-        .output()
-        .unwrap();
+    let o = run_out(
+        "TESTS/rays/manifest.yaml",
+        &d,
+        &["--filter", "rays_clip", "--json"],
+    );
     let b: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
     assert_eq!(b["complete"], true, "{}", text(&o));
     assert_eq!(b["cases_total"], 2);
@@ -717,19 +644,15 @@ fn deeply_nested_yaml_is_refused_in_under_a_second() {
 
 #[test]
 fn absurd_thread_counts_are_refused() {
-    let mut c = hpjudge()
-        .args([
-            "run",
-            "TESTS/selftest/manifest.yaml",
-            "--threads",
-            "100000",
-            "--out",
-        ])
-        .arg(tmp("threads"))
-        .stdout(std::process::Stdio::piped())
-        .stderr(std::process::Stdio::piped())
-        .spawn()
-        .unwrap();
+    let mut c = run_cmd(
+        "TESTS/selftest/manifest.yaml",
+        &tmp("threads"),
+        &["--threads", "100000"],
+    )
+    .stdout(std::process::Stdio::piped())
+    .stderr(std::process::Stdio::piped())
+    .spawn()
+    .unwrap();
     let s = wait_for(&mut c, 10.0).expect("still running after 10 s");
     let o = c.wait_with_output().unwrap();
     assert_eq!(s.code(), Some(2), "{}", text(&o));
@@ -990,13 +913,7 @@ fn dash_case_ids_run_filter_and_repro_into_their_own_out_folder() {
     std::fs::create_dir_all(&d).unwrap();
     let body = "cases:\n  - id: -rf\n    op: selftest.nan_image\n    assert:\n      - no_nan_inf: {}\n  - id: --help\n    op: selftest.good\n    assert:\n      - no_nan_inf: {}\n";
     let m = manifest(&d, body);
-    let o = hpjudge()
-        .arg("run")
-        .arg(&m)
-        .args(["--filter", "-rf", "--out"])
-        .arg(d.join("out"))
-        .output()
-        .unwrap();
+    let o = run_out(&m, &d.join("out"), &["--filter", "-rf"]);
     let t = text(&o);
     assert_eq!(o.status.code(), Some(1), "{t}");
     assert!(t.contains("0 passed, 1 failed"), "{t}");
@@ -1030,4 +947,180 @@ fn dash_case_ids_run_filter_and_repro_into_their_own_out_folder() {
     );
     let rb = std::fs::read_to_string(d.join("out/repro/-rf-cpu/scoreboard.json")).unwrap();
     assert!(rb.contains("\"-rf\"") && !rb.contains("--help"), "{rb}");
+}
+
+/// `(verdicts by case id, input hashes)` of a `--json` run's stdout.
+fn verdicts_and_hashes(o: &Output) -> (Vec<(String, String)>, serde_json::Value) {
+    let b: serde_json::Value =
+        serde_json::from_slice(&o.stdout).unwrap_or_else(|e| panic!("{e}: {}", text(o)));
+    let v = b["cases"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|c| {
+            let r = &c["results"][0];
+            (
+                c["id"].as_str().unwrap().to_string(),
+                r["verdict"].as_str().unwrap().to_string(),
+            )
+        })
+        .collect();
+    (v, b["inputs"].clone())
+}
+
+/// A run whose first case is slow (a hang with a 1 s limit); while it runs,
+/// the manifest, thresholds and a referenced scene are rewritten so that
+/// each later case would FAIL. The verdicts and input hashes must be those
+/// of the files as they were at start (the old binary re-read the scene in
+/// the worker: `edited_scene` FAILed with the start hashes on the board).
+#[test]
+fn edits_during_a_run_change_no_verdict_and_no_input_hash() {
+    let d = tmp("midrun");
+    let scene = std::fs::read_to_string(
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("TESTS/scenes/rays_pinhole.yaml"),
+    )
+    .unwrap()
+    .replace("width: 64", "width: 4")
+    .replace("height: 64", "height: 4");
+    std::fs::write(d.join("edited.yaml"), &scene).unwrap();
+    std::fs::write(d.join("fixed.yaml"), &scene).unwrap();
+    let body = "cases:
+  - id: slow_first
+    op: selftest.hang
+    timeout: selftest_short
+  - id: edited_manifest
+    op: selftest.good
+    assert:
+      - range: {tensor: rgb, min: 0, max: 1}
+  - id: edited_thresholds
+    op: selftest.gradient
+    params: {flip: true}
+    assert:
+      - fd_rel_err: {a: grad, b: fd, tol: selftest_grad}
+  - id: edited_scene
+    op: rays.generate
+    scene: edited.yaml
+    refs:
+      ref: {scene: fixed.yaml}
+    assert:
+      - memcmp_same: {a: d, b: ref.d}
+";
+    let m = manifest(&d, body);
+    let th = d.join("thresholds.yaml");
+    let th_text = std::fs::read_to_string(&th).unwrap();
+    let th_start = th_text
+        .replacen("  selftest_short: 3", "  selftest_short: 1", 1)
+        .replacen(
+            "  selftest_grad: {rtol: 1.0e-6, floor: 1.0e-9}",
+            "  selftest_grad: {rtol: 3.0, floor: 1.0e-9}",
+            1,
+        );
+    std::fs::write(&th, &th_start).unwrap();
+    let edit = || {
+        std::fs::write(&m, body.replace("min: 0, max: 1", "min: 2, max: 3")).unwrap();
+        std::fs::write(
+            &th,
+            th_start.replace("rtol: 3.0, floor", "rtol: 1.0e-6, floor"),
+        )
+        .unwrap();
+        std::fs::write(
+            d.join("edited.yaml"),
+            scene.replace("fov_y: 40", "fov_y: 41"),
+        )
+        .unwrap();
+    };
+    let run = |out: &str, filter: &str| {
+        run_cmd(
+            &m,
+            &d.join(out),
+            &["--json", "--backend", "cpu", "--filter", filter],
+        )
+    };
+    let before = verdicts_and_hashes(&run("before", "edited").output().unwrap());
+    let judge = run("during", "_")
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::null())
+        .spawn()
+        .unwrap();
+    let log = d.join("during/slow_first/cpu/worker.log");
+    let t = std::time::Instant::now();
+    while !log.exists() && t.elapsed().as_secs() < 20 {
+        std::thread::sleep(std::time::Duration::from_millis(10));
+    }
+    edit();
+    let during = verdicts_and_hashes(&judge.wait_with_output().unwrap());
+    let after = verdicts_and_hashes(&run("after", "edited").output().unwrap());
+    let pass = |ids: &[&str], v: &str| -> Vec<(String, String)> {
+        ids.iter().map(|i| (i.to_string(), v.to_string())).collect()
+    };
+    let ids = ["edited_manifest", "edited_scene", "edited_thresholds"];
+    assert_eq!(before.0, pass(&ids, "PASS"), "before the edit");
+    assert_eq!(after.0, pass(&ids, "FAIL"), "the edit flips every case");
+    let mut expect = pass(&ids, "PASS");
+    expect.push(("slow_first".into(), "TIMEOUT".into()));
+    expect.sort();
+    assert_eq!(during.0, expect, "edited during the run");
+    assert_eq!(during.1, before.1, "input hashes of the start");
+    for k in ["manifest_tree_sha256", "thresholds_sha256", "scenes_sha256"] {
+        assert_ne!(after.1[k], before.1[k], "{k} sees the edit");
+    }
+}
+
+/// `hpjudge bless` runs each case in a worker under the run's limits: a
+/// case past its time limit is killed (TIMEOUT) and a panicking one is an
+/// ERROR, neither writes a golden, and the goldens of the cases around them
+/// are written and listed. The old binary stopped listing at the first bad
+/// case (`d_good`'s golden written but never reported).
+#[test]
+fn bless_kills_a_case_past_its_limit_and_keeps_the_other_goldens() {
+    let d = tmp("bless");
+    let m = manifest(
+        &d,
+        "cases:
+  - id: a_good
+    op: selftest.good
+    assert:
+      - memcmp_same: {a: rgb, b: \"golden:it/a.npy\"}
+  - id: b_hang
+    op: selftest.hang
+    timeout: selftest_short
+    assert:
+      - memcmp_same: {a: x, b: \"golden:it/b.npy\"}
+  - id: c_panics
+    op: selftest.panic
+    assert:
+      - memcmp_same: {a: x, b: \"golden:it/c.npy\"}
+  - id: d_good
+    op: selftest.good
+    assert:
+      - memcmp_same: {a: t, b: \"golden:it/d.npy\"}
+",
+    );
+    let th = d.join("thresholds.yaml");
+    let t = std::fs::read_to_string(&th).unwrap();
+    std::fs::write(
+        &th,
+        t.replacen("  selftest_short: 3", "  selftest_short: 1", 1),
+    )
+    .unwrap();
+    let mut c = hpjudge();
+    c.arg("bless")
+        .arg(&m)
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped());
+    let mut child = c.spawn().unwrap();
+    let status = wait_for(&mut child, 30.0).expect("bless still running after 30 s");
+    let o = child.wait_with_output().unwrap();
+    let t = text(&o);
+    assert_eq!(status.code(), Some(1), "{t}");
+    let g = d.join("GOLDENS/it");
+    for (f, blessed) in [("a", true), ("b", false), ("c", false), ("d", true)] {
+        assert_eq!(g.join(format!("{f}.npy")).is_file(), blessed, "{f}: {t}");
+        let line = format!("blessed {}", g.join(format!("{f}.npy")).display());
+        assert_eq!(t.contains(&line), blessed, "{f}: {t}");
+    }
+    assert!(
+        t.contains("b_hang: TIMEOUT") && t.contains("c_panics: ERROR"),
+        "{t}"
+    );
 }

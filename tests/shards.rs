@@ -2,49 +2,23 @@
 //! the shards of a run, merged, give the unsharded run's verdicts; an
 //! incomplete shard set is refused; `hpjudge report` lists every case.
 
+mod common;
+
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
+use std::process::Output;
 
-fn hpjudge() -> Command {
-    let exe = std::env::var_os("HPJUDGE_IT_BIN")
-        .map(PathBuf::from)
-        .unwrap_or_else(|| PathBuf::from(env!("CARGO_BIN_EXE_hpjudge")));
-    let mut c = Command::new(exe);
-    c.current_dir(env!("CARGO_MANIFEST_DIR")).env_remove("CI");
-    c
-}
+use common::{hpjudge, run_cmd, text};
 
 fn tmp(name: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("hpjudge-shards-{}-{name}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&d);
-    std::fs::create_dir_all(&d).unwrap();
-    d
-}
-
-fn text(o: &Output) -> String {
-    format!(
-        "{}{}",
-        String::from_utf8_lossy(&o.stdout),
-        String::from_utf8_lossy(&o.stderr)
-    )
+    common::tmp_in("shards", name)
 }
 
 /// The self-test and ray suites: every verdict kind, ~40 results, seconds.
 const MANIFESTS: [&str; 2] = ["TESTS/selftest/manifest.yaml", "TESTS/rays/manifest.yaml"];
 
 fn run(manifest: &str, out: &Path, extra: &[&str]) -> Output {
-    hpjudge()
-        .args([
-            "run",
-            manifest,
-            "--backend",
-            "cpu",
-            "--profile",
-            "ci",
-            "--out",
-        ])
-        .arg(out)
+    run_cmd(manifest, out, &["--backend", "cpu", "--profile", "ci"])
         .args(extra)
         .output()
         .unwrap()

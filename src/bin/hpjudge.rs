@@ -647,11 +647,12 @@ fn cmd_bless(a: &BlessArgs) -> anyhow::Result<Outcome> {
         partition: None,
     };
     let board = runner::run(&opts)?;
-    let mut wrote = 0;
+    let _ = std::fs::remove_dir_all(&opts.out);
+    let (mut wrote, mut failed) = (0, vec![]);
     for c in &board.cases {
         for r in &c.results {
             if r.verdict != Verdict::Pass {
-                bail!("{}: {} {}", c.id, r.verdict.name(), r.reason);
+                failed.push(format!("{}: {} {}", c.id, r.verdict.name(), r.reason));
             }
             for f in &r.artifacts {
                 println!("blessed {f}");
@@ -660,6 +661,13 @@ fn cmd_bless(a: &BlessArgs) -> anyhow::Result<Outcome> {
         }
     }
     println!("{wrote} golden files written; review them with git diff before committing");
+    if !failed.is_empty() {
+        bail!(
+            "{} cases wrote no goldens (their old goldens are untouched):\n{}",
+            failed.len(),
+            failed.join("\n")
+        );
+    }
     Ok(Outcome::Ok)
 }
 

@@ -1,20 +1,19 @@
 //! Fuzzing in `cargo test`: seeded byte mutations and structure-aware (YAML
 //! tree, `.npy` header) mutations of every committed manifest, thresholds
 //! file, perf scenario file, scene and `.npy`. Each input must load or be
-//! refused with an error: no panic, no abort, none over 1 s. A deterministic
-//! counter-based mutator (`rng::rand_u32`), no cargo-fuzz.
+//! refused with an error: no panic, no abort, none over 1 s. YAML inputs go
+//! through exactly `hpjudge check`'s path ([`load_inputs`], the function
+//! `check` calls, profile `ci`); `.npy` inputs through the run's reader. A
+//! deterministic counter-based mutator (`rng::rand_u32`), no cargo-fuzz.
 
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use serde_yaml::Value;
 
-use super::manifest::Manifest;
-use super::perf::PerfScenarios;
-use super::thresholds::Thresholds;
+use super::runner::load_inputs;
 use crate::budget::MemBudget;
 use crate::rng::rand_u32;
-use crate::scene::{self, SceneDoc};
 use crate::tensor::Tensor;
 
 /// Inputs generated in all (CI included).
@@ -242,23 +241,21 @@ fn mutate_npy_header(b: &mut Vec<u8>, r: &mut Rng) {
     }
 }
 
-/// Loads `path` as `kind`; Ok or Err are both fine, a panic is not.
-fn load(kind: Kind, path: &Path, th: &Thresholds) -> Result<(), String> {
+/// Loads `path` as `kind` the way `hpjudge check` would: a manifest against
+/// the project's thresholds; thresholds, a perf file or a scene through
+/// `check.yaml` (one case naming `scene.yaml`) in `dir`, with `dir`'s
+/// thresholds and perf file. Ok or Err are both fine, a panic is not.
+fn load(kind: Kind, path: &Path, dir: &Path) -> Result<(), String> {
+    let project_th = Path::new(env!("CARGO_MANIFEST_DIR")).join("thresholds.yaml");
+    let check = |manifest: &Path, th: &Path| {
+        load_inputs(manifest, Some(th), Some("ci"))
+            .map(drop)
+            .map_err(|e| e.to_string())
+    };
     match kind {
-        Kind::Manifest => {
-            let m = Manifest::load(path).map_err(|e| e.to_string())?;
-            m.validate(th, &PerfScenarios::default())
-                .map_err(|e| e.to_string())
-        }
-        Kind::Thresholds => Thresholds::load(path, "ci")
-            .map(drop)
-            .map_err(|e| e.to_string()),
-        Kind::Perf => PerfScenarios::load(path)
-            .map(drop)
-            .map_err(|e| e.to_string()),
-        Kind::Scene => {
-            let doc = SceneDoc::load_values(path, &[]).map_err(|e| e.to_string())?;
-            scene::validate(&doc).map_err(|e| e.to_string())
+        Kind::Manifest => check(path, &project_th),
+        Kind::Thresholds | Kind::Perf | Kind::Scene => {
+            check(&dir.join("check.yaml"), &dir.join("thresholds.yaml"))
         }
         Kind::Npy => Tensor::read_npy_within(path, MemBudget::fixed(1 << 30))
             .map(drop)
@@ -272,12 +269,37 @@ fn twenty_thousand_mutated_inputs_are_refused_within_a_second_or_load_no_slower_
     let files = corpus();
     assert!(files.len() >= 30, "corpus of {} files", files.len());
     let root = Path::new(env!("CARGO_MANIFEST_DIR"));
-    let th = Thresholds::load(&root.join("thresholds.yaml"), "ci").unwrap();
     // A TESTS/ of links to the real folders, so that mutated manifests find
     // the scenes and includes their originals name (and get validated past them).
     let dir = std::env::temp_dir().join(format!("hp-fuzz-{}", std::process::id()));
     let tests = dir.join("TESTS");
     std::fs::create_dir_all(tests.join("fuzz")).unwrap();
+    std::fs::copy(root.join("thresholds.yaml"), dir.join("thresholds.yaml")).unwrap();
+    std::fs::copy(
+        root.join("perf_scenarios.yaml"),
+        dir.join("perf_scenarios.yaml"),
+    )
+    .unwrap();
+    // Scenes sit where the files they name (grids/, hash/, nerf/) resolve.
+    std::fs::copy(
+        root.join("TESTS/scenes/rays_pinhole.yaml"),
+        dir.join("scene.yaml"),
+    )
+    .unwrap();
+    for e in std::fs::read_dir(root.join("TESTS/scenes"))
+        .unwrap()
+        .flatten()
+    {
+        if e.path().is_dir() {
+            #[cfg(unix)]
+            let _ = std::os::unix::fs::symlink(e.path(), dir.join(e.file_name()));
+        }
+    }
+    std::fs::write(
+        dir.join("check.yaml"),
+        "cases:\n  - id: s\n    op: selftest.good\n    scene: scene.yaml\n",
+    )
+    .unwrap();
     for e in std::fs::read_dir(root.join("TESTS")).unwrap().flatten() {
         if e.path().is_dir() {
             #[cfg(unix)]
@@ -298,14 +320,17 @@ fn twenty_thousand_mutated_inputs_are_refused_within_a_second_or_load_no_slower_
                 tests.join("manifest.yaml")
             }
             Kind::Manifest => tests.join("fuzz/manifest.yaml"),
-            _ => dir.join(src.file_name().unwrap()),
+            Kind::Thresholds => dir.join("thresholds.yaml"),
+            Kind::Perf => dir.join("perf_scenarios.yaml"),
+            Kind::Scene => dir.join("scene.yaml"),
+            Kind::Npy => dir.join(src.file_name().unwrap()),
         };
         // A mutant that loads may do the original's real work (a mesh scene
         // voxelises its mesh): it is held to 3x the original's own load time
         // under the same machine load; a refusal is held to MAX_SECONDS.
         std::fs::write(&target, &original).unwrap();
         let t = Instant::now();
-        let _ = load(*kind, &target, &th);
+        let _ = load(*kind, &target, &dir);
         let loaded_limit = MAX_SECONDS.max(3.0 * t.elapsed().as_secs_f64());
         for k in 0..per_file {
             let mut r = Rng {
@@ -336,7 +361,7 @@ fn twenty_thousand_mutated_inputs_are_refused_within_a_second_or_load_no_slower_
             };
             std::fs::write(&target, &bytes).unwrap();
             let t = Instant::now();
-            let res = std::panic::catch_unwind(|| load(*kind, &target, &th));
+            let res = std::panic::catch_unwind(|| load(*kind, &target, &dir));
             let secs = t.elapsed().as_secs_f64();
             slowest = slowest.max(secs);
             let limit = match res {
@@ -357,6 +382,8 @@ fn twenty_thousand_mutated_inputs_are_refused_within_a_second_or_load_no_slower_
                 problems.push(format!("{} input {k}: took {secs:.2} s", src.display()));
             }
         }
+        // The next file is checked against this one's original.
+        std::fs::write(&target, &original).unwrap();
     }
     let _ = std::fs::remove_dir_all(&dir);
     eprintln!(

@@ -1,11 +1,13 @@
 //! What the judge hands a worker, and the worker process that runs it. The
 //! judge resolves everything (the case as loaded, thresholds with the profile
-//! applied, perf scenarios) and writes it to the worker's stdin as YAML: a
-//! worker never re-reads the manifest, so an edit during a run cannot change
-//! a verdict, and no case id or path ever passes through argument parsing.
+//! applied, perf scenarios, the text of the case's scene files as hashed on
+//! the scoreboard) and writes it to the worker's stdin as YAML: a worker never
+//! re-reads the manifest, thresholds or scenes, so an edit during a run cannot
+//! change a verdict, and no case id or path ever passes through argument parsing.
 //! Workers die with the judge (parent-death signal) and end themselves at
 //! their own deadline.
 
+use std::collections::BTreeMap;
 use std::io::{Read, Write};
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
@@ -35,6 +37,8 @@ pub enum Task {
 #[derive(Clone, Debug, Deserialize, Serialize)]
 pub struct Job {
     pub task: Task,
+    /// Text of each scene file the case reads, as the judge read it at load.
+    pub scenes: BTreeMap<PathBuf, String>,
     pub thresholds: Thresholds,
     pub perf: PerfScenarios,
     /// The run's output folder (artifacts go to `<out>/<case>/<backend>/`).

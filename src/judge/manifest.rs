@@ -141,6 +141,17 @@ impl LoadedCase {
     pub fn scene_path(&self, scene: Option<&str>) -> Option<PathBuf> {
         scene.map(|s| self.dir().join(s))
     }
+
+    /// Every scene file its runs read (main and refs), resolved.
+    pub fn scene_paths(&self) -> BTreeSet<PathBuf> {
+        let c = &self.case;
+        let refs = c.refs.values().filter_map(|r| r.scene.as_ref());
+        c.scene
+            .iter()
+            .chain(refs)
+            .map(|s| self.dir().join(s))
+            .collect()
+    }
 }
 
 /// All cases of a manifest and its includes, in file order.

@@ -64,6 +64,7 @@ pub fn run_scenarios(
             .unwrap_or(600.0);
         let job = Job {
             task: Task::Scenario { id: s.id.clone() },
+            scenes: Default::default(),
             thresholds: th.clone(),
             perf: perf.clone(),
             out: out.to_path_buf(),

@@ -73,8 +73,14 @@ pub struct Inputs {
     /// Folder of thresholds.yaml: the project root (GOLDENS/ lives there).
     pub root: PathBuf,
     pub profile_reason: String,
-    /// SHA-256 of every scene file the cases name.
-    pub scenes: BTreeMap<PathBuf, String>,
+    /// Every scene file the cases name, as read at load time.
+    pub scenes: BTreeMap<PathBuf, SceneFile>,
+}
+
+/// A scene file as the judge read it: workers get this text, never the file.
+pub struct SceneFile {
+    pub text: String,
+    pub sha256: String,
 }
 
 /// Finds `name` in `start` or the nearest folder above it.
@@ -152,10 +158,10 @@ pub fn load_inputs(
 
 /// Loads and validates every scene a case's runs use, as `run` would:
 /// with the case's `set:`, with its `ci:` overrides on top, and each ref's
-/// scene with its own `set:`. Records each scene file's SHA-256.
+/// scene with its own `set:`. Keeps each scene file's text and SHA-256.
 fn validate_scenes(
     lc: &LoadedCase,
-    hashes: &mut BTreeMap<PathBuf, String>,
+    files: &mut BTreeMap<PathBuf, SceneFile>,
 ) -> Result<(), JudgeInputError> {
     let c = &lc.case;
     type Sets = BTreeMap<String, serde_yaml::Value>;
@@ -178,12 +184,13 @@ fn validate_scenes(
     for (key, scene, extra) in runs {
         let Some(s) = scene else { continue };
         let path = lc.dir().join(s);
-        if !hashes.contains_key(&path) {
-            let bytes = std::fs::read(&path).map_err(|e| {
-                JudgeInputError::new(&lc.at(), &key, format!("{}: {e}", path.display()))
-            })?;
-            hashes.insert(path.clone(), format!("{:x}", Sha256::digest(&bytes)));
+        if !files.contains_key(&path) {
+            let text = scene::read_yaml_text(&path)
+                .map_err(|e| JudgeInputError::new(&lc.at(), &key, e.to_string()))?;
+            let sha256 = format!("{:x}", Sha256::digest(text.as_bytes()));
+            files.insert(path.clone(), SceneFile { text, sha256 });
         }
+        let text = &files[&path].text;
         let profiles: &[Option<&Sets>] = if c.ci.is_empty() {
             &[None]
         } else {
@@ -195,7 +202,7 @@ fn validate_scenes(
             } else {
                 format!("{key}.scene")
             };
-            let doc = SceneDoc::load_values(&path, &sets_for(&c.set, *ci, extra))
+            let doc = SceneDoc::load_text(&path, text, &sets_for(&c.set, *ci, extra))
                 .map_err(|e| JudgeInputError::new(&lc.at(), &at_key, e.to_string()))?;
             scene::validate(&doc)
                 .map_err(|e| JudgeInputError::new(&lc.at(), &at_key, e.to_string()))?;
@@ -205,10 +212,10 @@ fn validate_scenes(
 }
 
 /// One SHA-256 over `(hash, path)` lines of files.
-fn combined_sha256(files: &BTreeMap<PathBuf, String>) -> String {
+fn combined_sha256(files: &BTreeMap<PathBuf, SceneFile>) -> String {
     let mut h = Sha256::new();
-    for (p, s) in files {
-        h.update(format!("{s}  {}\n", p.display()).as_bytes());
+    for (p, f) in files {
+        h.update(format!("{}  {}\n", f.sha256, p.display()).as_bytes());
     }
     format!("{:x}", h.finalize())
 }
@@ -293,6 +300,11 @@ fn spawn_worker(
             case: Box::new(lc.clone()),
             backend: b,
         },
+        scenes: lc
+            .scene_paths()
+            .into_iter()
+            .filter_map(|p| Some((p.clone(), inputs.scenes.get(&p)?.text.clone())))
+            .collect(),
         thresholds: inputs.thresholds.clone(),
         perf: inputs.perf.clone(),
         out: opts.out.clone(),

@@ -30,6 +30,8 @@ pub const PERF_NOT_ENFORCED: &str = "perf gates not enforced in profile";
 /// What the worker needs besides the case.
 pub struct WorkerEnv<'a> {
     pub thresholds: &'a Thresholds,
+    /// The case's scene files as the judge read them ([`super::job::Job::scenes`]).
+    pub scenes: &'a BTreeMap<PathBuf, String>,
     pub perf: &'a PerfScenarios,
     /// The run's output folder (artifacts go to `<out>/<case>/<backend>/`).
     pub out: &'a Path,
@@ -77,22 +79,27 @@ pub fn sets_for(
     v
 }
 
+/// The runs of a case, their scenes parsed from the judge's snapshot
+/// (`scenes`), never from the files, which may have changed since.
 fn resolve_runs(
     lc: &LoadedCase,
     backend: BackendKind,
     size: SizeProfile,
+    scenes: &BTreeMap<PathBuf, String>,
 ) -> Result<Vec<RunSpec>, String> {
     let c = &lc.case;
     let ci = (size == SizeProfile::Ci).then_some(&c.ci);
     let load = |scene: &Option<String>,
                 extra: Option<&BTreeMap<String, Value>>|
      -> Result<Option<SceneDoc>, String> {
-        match scene {
-            None => Ok(None),
-            Some(s) => SceneDoc::load_values(&lc.dir().join(s), &sets_for(&c.set, ci, extra))
-                .map(Some)
-                .map_err(|e| e.to_string()),
-        }
+        let Some(s) = scene else { return Ok(None) };
+        let path = lc.dir().join(s);
+        let text = scenes
+            .get(&path)
+            .ok_or_else(|| format!("{}: not in the judge's snapshot", path.display()))?;
+        SceneDoc::load_text(&path, text, &sets_for(&c.set, ci, extra))
+            .map(Some)
+            .map_err(|e| e.to_string())
     };
     let find = |op: &str| ops::find(op).ok_or_else(|| format!("unknown operation {op:?}"));
     let mut runs = vec![RunSpec {
@@ -206,7 +213,7 @@ pub fn run_case(lc: &LoadedCase, backend: BackendKind, env: &WorkerEnv) -> Backe
         );
         return res;
     }
-    let runs = match resolve_runs(lc, backend, size) {
+    let runs = match resolve_runs(lc, backend, size, env.scenes) {
         Ok(r) => r,
         Err(e) => return errored(res, format!("cannot prepare the case: {e}")),
     };
@@ -331,29 +338,39 @@ fn errored(mut res: BackendResult, msg: String) -> BackendResult {
     res
 }
 
-/// `hpjudge bless`: writes the `a` side of every golden comparison.
+/// `hpjudge bless`: writes the `a` side of every golden comparison, each to
+/// a `.part` file first, then renames them all: a case that dies part way
+/// leaves its old goldens whole.
 fn bless(
     mut res: BackendResult,
     c: &super::manifest::Case,
     tensors: &BTreeMap<String, Tensor>,
     goldens: &Path,
 ) -> BackendResult {
+    let mut parts = vec![];
     for a in &c.asserts {
         for (name, path) in a.goldens() {
             let Some(t) = tensors.get(&name) else {
                 return errored(res, format!("bless: no output {name:?}"));
             };
             let p = goldens.join(&path);
+            let part = p.with_extension("npy.part");
             if let Some(parent) = p.parent() {
                 if let Err(e) = std::fs::create_dir_all(parent) {
                     return errored(res, format!("bless: {}: {e}", parent.display()));
                 }
             }
-            if let Err(e) = t.write_npy(&p) {
+            if let Err(e) = t.write_npy(&part) {
                 return errored(res, format!("bless: {e}"));
             }
-            res.artifacts.push(p.display().to_string());
+            parts.push((part, p));
         }
+    }
+    for (part, p) in parts {
+        if let Err(e) = std::fs::rename(&part, &p) {
+            return errored(res, format!("bless: {}: {e}", p.display()));
+        }
+        res.artifacts.push(p.display().to_string());
     }
     res
 }
@@ -415,6 +432,7 @@ pub fn serve(result: &Path) -> Result<(), String> {
     }
     let wenv = WorkerEnv {
         thresholds: &job.thresholds,
+        scenes: &job.scenes,
         perf: &job.perf,
         out: &job.out,
         goldens: &job.goldens,

@@ -37,19 +37,22 @@ pub struct SceneDoc {
 /// rejects alias expansion beyond what serde_yaml allows. Errors carry the
 /// file and, for syntax errors, line and column.
 pub fn read_yaml(path: &Path) -> Result<Value> {
-    let at = path.display().to_string();
+    parse_yaml_text(&read_yaml_text(path)?, &path.display().to_string())
+}
+
+/// The text of a YAML file, refused over [`MAX_YAML_BYTES`] before reading.
+pub fn read_yaml_text(path: &Path) -> Result<String> {
     let meta = std::fs::metadata(path).map_err(|e| Error::io(path, e))?;
     if meta.len() > MAX_YAML_BYTES {
         return Err(Error::invalid(
-            at,
+            path.display().to_string(),
             format!(
                 "{} bytes is over the {MAX_YAML_BYTES}-byte limit",
                 meta.len()
             ),
         ));
     }
-    let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
-    parse_yaml_text(&text, &at)
+    std::fs::read_to_string(path).map_err(|e| Error::io(path, e))
 }
 
 /// Parses YAML text (see [`read_yaml`]); `at` names the source.
@@ -99,14 +102,24 @@ impl SceneDoc {
     /// Loads a scene file, applies already-parsed overrides in order, then
     /// reads a NeRF camera file the camera names (`scene/nerf.rs`).
     pub fn load_values(path: &Path, sets: &[(String, Value)]) -> Result<SceneDoc> {
-        let mut doc = SceneDoc::load_raw(path, sets)?;
+        SceneDoc::load_text(path, &read_yaml_text(path)?, sets)
+    }
+
+    /// [`SceneDoc::load_values`] on `text`, the file's contents as read
+    /// earlier (the judge's snapshot): `path` names it and anchors relative paths.
+    pub fn load_text(path: &Path, text: &str, sets: &[(String, Value)]) -> Result<SceneDoc> {
+        let value = parse_yaml_text(text, &path.display().to_string())?;
+        let mut doc = SceneDoc::with_sets(path, value, sets)?;
         nerf::expand(&mut doc)?;
         Ok(doc)
     }
 
     /// [`SceneDoc::load_values`] without reading camera files.
     pub fn load_raw(path: &Path, sets: &[(String, Value)]) -> Result<SceneDoc> {
-        let mut value = read_yaml(path)?;
+        SceneDoc::with_sets(path, read_yaml(path)?, sets)
+    }
+
+    fn with_sets(path: &Path, mut value: Value, sets: &[(String, Value)]) -> Result<SceneDoc> {
         if !value.is_mapping() {
             return Err(Error::invalid(
                 path.display().to_string(),
@@ -199,7 +212,7 @@ pub fn validate(doc: &SceneDoc) -> Result<()> {
         "volume" => volume::load(doc).map(drop),
         "pathtrace" => pathtrace::parse(doc).map(drop),
         "transport" => transport::parse(doc).map(drop),
-        "voxels" => voxels::parse(doc).map(drop),
+        "voxels" => voxels::check(doc),
         other => Err(Error::invalid(
             doc.at(),
             format!(

@@ -30,6 +30,8 @@
 
 use crate::real::Real;
 
+pub use super::cast_real::CastReal;
+
 use super::contour::slab_interval;
 
 /// Scale of the root's children + 1: f32's mantissa bits.
@@ -40,73 +42,6 @@ pub const S_MAX: i32 = 23;
 /// a few iterations per voxel, so the cap grows with the grid.
 pub fn default_max_iter(depth: u32) -> u32 {
     (16u64 << depth.min(24)).clamp(1 << 16, u32::MAX as u64) as u32
-}
-
-/// A float the cast runs in: the bit-pattern tricks need its layout.
-pub trait CastReal: Real {
-    /// Mantissa bits beyond f32's 23.
-    const EXTRA: u32;
-    /// log2 of the direction epsilon (-23 for f32, -52 for f64).
-    const EPS_LOG2: i32;
-    fn bits(self) -> u64;
-    fn from_bits(b: u64) -> Self;
-    /// `2^k`, exact, for k in the normal exponent range.
-    fn exp2i(k: i32) -> Self;
-    /// The SSE cast ([`super::cast_sse`]): `Some` in f32 (bit-identical to
-    /// [`cast_with`] without contours), `None` in other precisions.
-    fn cast_sse<A: Addressing>(
-        _nodes: &[u32],
-        _depth: u32,
-        _o: [Self; 3],
-        _d: [Self; 3],
-        _p: &CastParams,
-    ) -> Option<CastHit<Self>> {
-        None
-    }
-}
-
-impl CastReal for f32 {
-    const EXTRA: u32 = 0;
-    const EPS_LOG2: i32 = -23;
-    #[inline]
-    fn bits(self) -> u64 {
-        self.to_bits() as u64
-    }
-    #[inline]
-    fn from_bits(b: u64) -> Self {
-        f32::from_bits(b as u32)
-    }
-    #[inline]
-    fn exp2i(k: i32) -> Self {
-        f32::from_bits(((k + 127) as u32) << 23)
-    }
-    #[inline]
-    fn cast_sse<A: Addressing>(
-        nodes: &[u32],
-        depth: u32,
-        o: [f32; 3],
-        d: [f32; 3],
-        p: &CastParams,
-    ) -> Option<CastHit<f32>> {
-        Some(super::cast_sse::cast_sse::<A>(nodes, depth, o, d, p))
-    }
-}
-
-impl CastReal for f64 {
-    const EXTRA: u32 = 29;
-    const EPS_LOG2: i32 = -52;
-    #[inline]
-    fn bits(self) -> u64 {
-        self.to_bits()
-    }
-    #[inline]
-    fn from_bits(b: u64) -> Self {
-        f64::from_bits(b)
-    }
-    #[inline]
-    fn exp2i(k: i32) -> Self {
-        f64::from_bits(((k + 1023) as u64) << 52)
-    }
 }
 
 /// Level-of-detail cut by ray footprint: stop at a voxel once
@@ -211,6 +146,9 @@ fn max3<F: Real>(a: [F; 3]) -> F {
 /// octree ([`Relative`]) and the DAG ([`Absolute`]) casts, chosen at compile
 /// time so both run the same loop with the same float operations.
 pub trait Addressing {
+    /// Whether children sit at `high word + c` ([`Absolute`]); the lane
+    /// cast ([`super::cast_lanes`]) picks its vector child address by it.
+    const ABSOLUTE: bool;
     /// Slot of child `c`'s descriptor, for the node at slot `parent` with
     /// low word `desc`; `child_masks` is `desc` shifted so that bits 0..7
     /// are the non-leaf bits of the children before `c` (in the mirrored
@@ -235,6 +173,7 @@ pub struct Relative;
 pub struct Absolute;
 
 impl Addressing for Relative {
+    const ABSOLUTE: bool = false;
     #[inline(always)]
     fn child(nodes: &[u32], parent: usize, desc: u32, child_masks: u32, _c: u32) -> usize {
         let mut ofs = (desc >> 17) as usize;
@@ -259,6 +198,7 @@ impl Addressing for Relative {
 }
 
 impl Addressing for Absolute {
+    const ABSOLUTE: bool = true;
     #[inline(always)]
     fn child(nodes: &[u32], parent: usize, _desc: u32, _child_masks: u32, c: u32) -> usize {
         nodes[2 * parent + 1] as usize + c as usize

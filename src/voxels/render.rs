@@ -165,6 +165,19 @@ pub fn cast_all_sse<F: CastReal, A: Addressing>(
     Some(collect(res.into_iter().collect::<Option<Vec<_>>>()?))
 }
 
+/// [`cast_all`] or [`cast_all_dag`] (addressing `A`) by the lane cast
+/// ([`super::cast_lanes`]): identical results in f32, `None` in other
+/// precisions.
+pub fn cast_all_lanes<F: CastReal, A: Addressing>(
+    nodes: &[u32],
+    depth: u32,
+    o: &[[F; 3]],
+    d: &[[F; 3]],
+    p: &CastParams,
+) -> Option<VoxelHits<F>> {
+    Some(collect(F::cast_all_lanes::<A>(nodes, depth, o, d, p)?))
+}
+
 /// [`cast_all`] with contours (`contours[attr]`, 0 = none); also returns
 /// each ray's contour (0 when its t did not come from a slab).
 pub fn cast_all_contours<F: CastReal>(

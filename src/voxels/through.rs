@@ -1,6 +1,6 @@
 //! What a scene's rays are cast through ([`Through`]: the octree, the DAG,
 //! or the octree with contours) and by which CPU path ([`CastPath`]: per
-//! ray, the referee, by packets, SSE, or from beam starts), on the CPU or uploaded to the GPU.
+//! ray, the referee, by packets, SSE, from beam starts, or in AVX2 lanes), on the CPU or uploaded to the GPU.
 
 use serde::Deserialize;
 
@@ -14,7 +14,9 @@ use super::dag::Dag;
 use super::gpu::contour_lut;
 use super::octree::Octree;
 use super::packet::{cast_all_packet, cast_all_packet_dag};
-use super::render::{cast_all, cast_all_contours, cast_all_dag, cast_all_sse, VoxelHits};
+use super::render::{
+    cast_all, cast_all_contours, cast_all_dag, cast_all_lanes, cast_all_sse, VoxelHits,
+};
 
 /// The CPU cast path (`voxels.render` param `cast`).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Deserialize)]
@@ -32,15 +34,19 @@ pub enum CastPath {
     /// bound, then the SSE cast (f32; the per-ray loop otherwise): identical
     /// hit, t, leaf, normal, fewer iterations.
     Beam,
+    /// [`super::cast_lanes`]: eight rays in flight, one per AVX2 lane,
+    /// lanes refilled from the stream, identical results (f32 only).
+    Lanes,
 }
 
 impl CastPath {
     /// Every path, the referee first.
-    pub const ALL: [CastPath; 4] = [
+    pub const ALL: [CastPath; 5] = [
         CastPath::PerRay,
         CastPath::Packet,
         CastPath::Sse,
         CastPath::Beam,
+        CastPath::Lanes,
     ];
 
     /// The path's name in scene and metric keys.
@@ -50,12 +56,16 @@ impl CastPath {
             CastPath::Packet => "packet",
             CastPath::Sse => "sse",
             CastPath::Beam => "beam",
+            CastPath::Lanes => "lanes",
         }
     }
 }
 
-fn sse_f32() -> Error {
-    Error::NotSupported("the sse cast is f32 only: use cast: per_ray or packet".into())
+fn f32_only(path: CastPath) -> Error {
+    Error::NotSupported(format!(
+        "the {} cast is f32 only: use cast: per_ray or packet",
+        path.name()
+    ))
 }
 
 /// What a scene's rays are cast through, on either backend.
@@ -108,10 +118,12 @@ impl<'a> Through<'a> {
             (CastPath::Packet, Through::Octree(t)) => Ok(cast_all_packet(t, o, d, p)),
             (CastPath::Packet, Through::Dag(g)) => Ok(cast_all_packet_dag(g, o, d, p)),
             (CastPath::Sse, Through::Octree(t)) => {
-                cast_all_sse::<F, Relative>(&t.nodes, t.depth, o, d, p).ok_or_else(sse_f32)
+                cast_all_sse::<F, Relative>(&t.nodes, t.depth, o, d, p)
+                    .ok_or_else(|| f32_only(path))
             }
             (CastPath::Sse, Through::Dag(g)) => {
-                cast_all_sse::<F, Absolute>(&g.nodes, g.depth, o, d, p).ok_or_else(sse_f32)
+                cast_all_sse::<F, Absolute>(&g.nodes, g.depth, o, d, p)
+                    .ok_or_else(|| f32_only(path))
             }
             (CastPath::Beam, Through::Octree(t)) => {
                 Ok(cast_all_beam::<F, Relative>(&t.nodes, t.depth, o, d, p))
@@ -119,11 +131,17 @@ impl<'a> Through<'a> {
             (CastPath::Beam, Through::Dag(g)) => {
                 Ok(cast_all_beam::<F, Absolute>(&g.nodes, g.depth, o, d, p))
             }
-            (CastPath::Packet | CastPath::Sse | CastPath::Beam, Through::Contours(..)) => {
-                Err(Error::NotSupported(format!(
-                    "the {path:?} cast has no contours: use cast: per_ray"
-                )))
+            (CastPath::Lanes, Through::Octree(t)) => {
+                cast_all_lanes::<F, Relative>(&t.nodes, t.depth, o, d, p)
+                    .ok_or_else(|| f32_only(path))
             }
+            (CastPath::Lanes, Through::Dag(g)) => {
+                cast_all_lanes::<F, Absolute>(&g.nodes, g.depth, o, d, p)
+                    .ok_or_else(|| f32_only(path))
+            }
+            (_, Through::Contours(..)) => Err(Error::NotSupported(format!(
+                "the {path:?} cast has no contours: use cast: per_ray"
+            ))),
         }
     }
 

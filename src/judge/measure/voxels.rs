@@ -16,6 +16,7 @@ use crate::voxels::batch::Batch;
 use crate::voxels::cast::CastReal;
 use crate::voxels::dag::{build_dag, Dag};
 use crate::voxels::gpu::gpu_params;
+use crate::voxels::node_order::breadth_first;
 use crate::voxels::octree::Octree;
 use crate::voxels::outputs::{build_metrics, dag_metrics};
 use crate::voxels::render::{cast_all, cast_all_dag, referee_all, VoxelHits};
@@ -132,7 +133,41 @@ pub fn gpu_bench(
         ("octree", Through::Octree(tree)),
         ("dag", Through::Dag(&dag)),
     ];
-    cpu_vs_gpu(&structures, gpu, sc, sets, budget, out)
+    cpu_vs_gpu(&structures, gpu, sc, sets, budget, out)?;
+    node_order(&dag, sc, sets, out)
+}
+
+/// The lane cast through the DAG and through its breadth-first copy
+/// ([`breadth_first`]) in [`ROUNDS`] interleaved rounds, per set:
+/// `dag_bfs_lanes_{set}_mrays_per_cpu_s`, `dag_bfs_{set}_lanes_speedup` (over
+/// the DAG's order, per CPU-second, same run), `dag_bfs_{set}_differing_rays`
+/// (hit, t, leaf or normal bits against the DAG's); `dag_bfs_bytes`.
+pub fn node_order(dag: &Dag, sc: &VoxelScene, sets: &Sets<f32>, out: &mut Outputs) -> Result<()> {
+    let bfs = breadth_first(dag);
+    out.metric("dag_bfs_bytes", bfs.stats.bytes as f64);
+    let pair = [Through::Dag(dag), Through::Dag(&bfs)];
+    for (set, b) in sets.named() {
+        let p = b.params(sc.lod, sc.max_iter);
+        let (mut cpu, mut res) = ([0.0; 2], [VoxelHits::default(), VoxelHits::default()]);
+        for _ in 0..ROUNDS {
+            for (k, through) in pair.iter().enumerate() {
+                let (h, _, c) = timed(|| through.cast_by(CastPath::Lanes, &b.o, &b.d, &p));
+                (res[k], cpu[k]) = (h?, cpu[k] + c);
+            }
+        }
+        let n = b.o.len() as f64 * ROUNDS as f64;
+        let rate = per_cpu_s(n, cpu[1]);
+        out.metric(&format!("dag_bfs_lanes_{set}_mrays_per_cpu_s"), rate);
+        out.metric(
+            &format!("dag_bfs_{set}_lanes_speedup"),
+            rate / per_cpu_s(n, cpu[0]).max(1e-12),
+        );
+        out.metric(
+            &format!("dag_bfs_{set}_differing_rays"),
+            differing(&res[0], &res[1]) as f64,
+        );
+    }
+    Ok(())
 }
 
 /// The octree cast and the referee (on every `stride`-th ray of the same

@@ -8,7 +8,7 @@ use super::{BackendKind, OpCtx};
 use crate::camera::Camera;
 use crate::error::{Error, Result};
 use crate::rays::referee::{clip_list_reference, clip_reference};
-use crate::rays::{clip_list, clip_list_outputs, f_ray, Aabb, RayGen, Rays};
+use crate::rays::{clip_list_in, clip_list_outputs, f_ray, Aabb, RayGen, Rays};
 use crate::real::{Precision, Real};
 use crate::rng::{rand_table, table_keys};
 use crate::tensor::{ListedTensor, Outputs, Tensor};
@@ -17,6 +17,7 @@ ops! {
     "rays.generate" CpuGpuF32 generate [] "f_ray on a rays scene: o, d, t0, t1, hit, pixel; metric mrays_per_s";
     "rays.render" CpuGpuF32 generate [] "hpjudge render of a rays scene (same as rays.generate)";
     "rays.clip_reference" Any clip_reference_op [] "independent f64 rays and box entry/exit by face intersection";
+    "rays.pinhole_reference" Any pinhole_reference_op [] "pinhole directions d from the scene's numbers alone";
     "rays.clip_list" Cpu clip_list_op ["rays", "aabb", "near", "far"]
         "clip the rays in params.rays ([ox,oy,oz,dx,dy,dz] each) to params.aabb";
     "rays.clip_list_reference" Any clip_list_reference_op ["rays", "aabb", "near", "far"]
@@ -77,6 +78,10 @@ fn generate(ctx: &OpCtx) -> Result<Outputs> {
     Ok(out)
 }
 
+fn pinhole_reference_op(ctx: &OpCtx) -> Result<Outputs> {
+    crate::rays::referee_pinhole::pinhole_reference(ctx.scene()?)
+}
+
 fn clip_reference_op(ctx: &OpCtx) -> Result<Outputs> {
     let (cam, gen) = view(ctx)?;
     clip_reference(&cam, &gen).to_outputs(&gen.shape())
@@ -107,11 +112,7 @@ fn listed(ctx: &OpCtx) -> Result<(Vec<[f64; 6]>, Aabb, f64, f64)> {
 
 fn clip_list_op(ctx: &OpCtx) -> Result<Outputs> {
     let (rays, b, near, far) = listed(ctx)?;
-    by_precision!(ctx, clip_in(&rays, &b, near, far))
-}
-
-fn clip_in<F: Real>(rays: &[[f64; 6]], b: &Aabb, near: f64, far: f64) -> Result<Outputs> {
-    clip_list_outputs(clip_list::<F>(rays, b, near, far))
+    by_precision!(ctx, clip_list_in(&rays, &b, near, far))
 }
 
 fn clip_list_reference_op(ctx: &OpCtx) -> Result<Outputs> {
@@ -148,10 +149,8 @@ fn rng_table(ctx: &OpCtx) -> Result<Outputs> {
     Ok(out)
 }
 
-/// `expm1(x)` for every finite x of `params.xs`: on the CPU in the case's
-/// precision (libm; f64 at the f32-rounded argument, so the comparison
-/// measures expm1's error, not the argument's rounding), on the GPU by
-/// `common.wgsl` `expm1_f32`. Output `y`.
+/// `expm1(x)` of finite `params.xs` (f32-rounded): CPU libm in the case's
+/// precision, GPU `common.wgsl` `expm1_f32`. Output `y`.
 fn expm1_table(ctx: &OpCtx) -> Result<Outputs> {
     let xs: Vec<f64> = ctx.param_req("xs")?;
     if xs.iter().any(|x| !x.is_finite()) {
