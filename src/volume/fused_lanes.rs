@@ -143,32 +143,32 @@ pub fn query_of<F: Real>(medium: &Medium<F>) -> impl Fn([f32; 3]) -> (f32, [f32;
     }
 }
 
-/// One integrated sample of a lane, as the backward's replay records it.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct LaneSample {
+/// One step of a lane group, as the backward's replay records it: lane
+/// `l`'s integrated sample `k` where bit `l` of `live` is set.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct LaneStep {
     pub k: u32,
-    pub t: f32,
-    pub dt: f32,
-    pub sigma: f32,
-    pub c: [f32; 3],
+    pub live: u8,
+    pub t: [f32; LANES],
+    pub dt: [f32; LANES],
+    pub sigma: [f32; LANES],
+    pub c: [[f32; LANES]; 3],
     /// `log T` before the sample.
-    pub log_t: f32,
-    pub alpha: f32,
+    pub log_t: [f32; LANES],
+    pub alpha: [f32; LANES],
 }
 
-/// Receives the lanes' integrated samples; `()` records nothing (and the
-/// loop then stores none of them).
+/// Receives the lanes' steps (in lattice order); `()` records nothing (and
+/// the loop then stores none of them).
 pub trait LaneSink {
     const RECORD: bool;
-    fn sample(&mut self, lane: usize, s: LaneSample);
+    fn step(&mut self, s: &LaneStep);
 }
 
 impl LaneSink for () {
     const RECORD: bool = false;
-    fn sample(&mut self, _: usize, _: LaneSample) {}
+    fn step(&mut self, _: &LaneStep) {}
 }
-
-impl LaneMarch<'_> {}
 
 /// Grids the lanes index with 32-bit offsets: 4-channel, `oob: zero`, at
 /// least 2 nodes per axis, under 2^31 elements.
@@ -193,10 +193,10 @@ fn avx2() -> bool {
 }
 
 #[cfg(target_arch = "x86_64")]
-mod avx2 {
+pub(super) mod avx2 {
     use std::arch::x86_64::*;
 
-    use super::{LaneMarch, LaneRay, LaneSample, LaneSink, Query, LANES};
+    use super::{LaneMarch, LaneRay, LaneSink, LaneStep, Query, LANES};
     use crate::volume::integrate::{alpha_of, RayAcc};
     use crate::volume::sample::{sample_k, FLAG_HIT, FLAG_STOPPED, FLAG_TRUNCATED};
 
@@ -204,7 +204,12 @@ mod avx2 {
     /// `live` is set.
     #[inline]
     #[target_feature(enable = "avx2")]
-    unsafe fn kahan(sum: &mut __m256, comp: &mut __m256, x: __m256, live: __m256) {
+    pub(in crate::volume) unsafe fn kahan(
+        sum: &mut __m256,
+        comp: &mut __m256,
+        x: __m256,
+        live: __m256,
+    ) {
         let y = _mm256_sub_ps(x, *comp);
         let t = _mm256_add_ps(*sum, y);
         let c = _mm256_sub_ps(_mm256_sub_ps(t, *sum), y);
@@ -404,21 +409,16 @@ mod avx2 {
                     _mm256_storeu_ps(a.as_mut_ptr(), v);
                     a
                 };
-                let (ta, ha, sa, la, aa) = (st(t), st(h), st(sigma), st(log_t), st(alpha));
-                let ca = col.map(st);
-                let live_bits = _mm256_movemask_ps(live);
-                for l in (0..LANES).filter(|l| live_bits & (1 << l) != 0) {
-                    let s = LaneSample {
-                        k,
-                        t: ta[l],
-                        dt: ha[l],
-                        sigma: sa[l],
-                        c: [ca[0][l], ca[1][l], ca[2][l]],
-                        log_t: la[l],
-                        alpha: aa[l],
-                    };
-                    sink.sample(l, s);
-                }
+                sink.step(&LaneStep {
+                    k,
+                    live: _mm256_movemask_ps(live) as u8,
+                    t: st(t),
+                    dt: st(h),
+                    sigma: st(sigma),
+                    c: col.map(st),
+                    log_t: st(log_t),
+                    alpha: st(alpha),
+                });
             }
             let w = _mm256_mul_ps(trans, alpha);
             for c in 0..3 {

@@ -14,7 +14,9 @@ use crate::real::Real;
 use crate::stats::summary::median;
 use crate::tensor::{Outputs, Tensor};
 use crate::volume::compose::Compose;
-use crate::volume::diff::{f_diff, forward_buffers, DiffOptions, Reduce, Upstream};
+use crate::volume::diff::{
+    f_diff, f_diff_kernel, forward_buffers, DiffOptions, Grads, Kernel, Reduce, Upstream,
+};
 use crate::volume::{prepare, render, render_prepared, Chain, VolumeParams};
 
 /// Fused against unfused medians over `repeats` frames of one prepared plan
@@ -173,9 +175,12 @@ fn sweep_point<F: Real>(
     Ok((median(&mut times), err))
 }
 
-/// Backward medians over `repeats`: forward time, fused chunked and sorted,
-/// unfused (from kept forward buffers): grads_per_s, bwd_fwd_ratio,
-/// bytes_per_sample_fused/unfused.
+/// Backward medians over `repeats`: forward time, fused chunked (lanes and,
+/// interleaved, the scalar walk they replace) and sorted, unfused (from kept
+/// forward buffers): grads_per_s, bwd_fwd_ratio (wall) and bwd_fwd_cpu_ratio
+/// (CPU seconds), scalar_grads_per_s and lanes_speedup (scalar / lanes, CPU
+/// seconds), bytes_per_sample_fused/unfused. Refuses lanes whose gradients
+/// differ from the scalar walk's.
 pub fn backward<F: Real>(
     cam: &Camera,
     gen: &RayGen,
@@ -199,16 +204,40 @@ pub fn backward<F: Real>(
         reduce: Reduce::Sorted,
         per_sample: false,
     };
-    let (mut tf, mut tb, mut tbs, mut tu) = (vec![], vec![], vec![], vec![]);
+    let (mut tf, mut tb, mut tbs, mut tu, mut tsc) = (vec![], vec![], vec![], vec![], vec![]);
+    let mut cpu = [0.0f64; 3];
     let (mut samples, mut bf, mut bu) = (0, 0, 0);
     let fwd = forward_buffers::<F>(gen, cam, p, budget)?;
+    let bits = |g: &Grads<F>| {
+        let v = g.dsigma.iter().chain(&g.dcolor).flatten();
+        v.chain(&g.dcam)
+            .map(|x| x.f64().to_bits())
+            .collect::<Vec<_>>()
+    };
     for _ in 0..repeats {
+        let c0 = process_cpu_s();
         let t = Instant::now();
         let r = render::<F>(cam, gen, p, Chain::Fused, Compose::Sorted, budget)?;
         tf.push(t.elapsed().as_secs_f64());
         samples = r.counters.samples;
+        let c1 = process_cpu_s();
         let g = f_diff::<F>(cam, gen, p, w, &fused, None, budget)?;
+        let c2 = process_cpu_s();
+        let s = f_diff_kernel::<F>(cam, gen, p, w, &fused, None, budget, Kernel::Scalar)?;
+        let c3 = process_cpu_s();
+        if bits(&g) != bits(&s) {
+            return Err(Error::invalid(
+                "volume.grad_perf",
+                "lane and scalar backward gradients differ: speed of different results",
+            ));
+        }
+        if let (Some(c0), Some(c1), Some(c2), Some(c3)) = (c0, c1, c2, c3) {
+            cpu[0] += c1 - c0;
+            cpu[1] += c2 - c1;
+            cpu[2] += c3 - c2;
+        }
         tb.push(g.time_s);
+        tsc.push(s.time_s);
         bf = g.bytes_per_sample;
         let g = f_diff::<F>(cam, gen, p, w, &fused_sorted, None, budget)?;
         tbs.push(g.time_s);
@@ -217,12 +246,18 @@ pub fn backward<F: Real>(
         bu = g.bytes_per_sample;
     }
     let (tf, tb) = (median(&mut tf), median(&mut tb));
-    let (tbs, tu) = (median(&mut tbs), median(&mut tu));
+    let (tbs, tu, tsc) = (median(&mut tbs), median(&mut tu), median(&mut tsc));
     let s = samples as f64;
     let mut out = Outputs::default();
     out.metric("forward_time_s", tf);
     out.metric("time_s", tb).metric("grads_per_s", s / tb);
     out.metric("bwd_fwd_ratio", tb / tf);
+    out.metric("scalar_time_s", tsc)
+        .metric("scalar_grads_per_s", s / tsc);
+    if cpu.iter().all(|&c| c > 0.0) {
+        out.metric("bwd_fwd_cpu_ratio", cpu[1] / cpu[0]);
+        out.metric("lanes_speedup", cpu[2] / cpu[1]);
+    }
     out.metric("sorted_time_s", tbs)
         .metric("sorted_grads_per_s", s / tbs);
     out.metric("unfused_time_s", tu)

@@ -56,6 +56,7 @@
 mod camera;
 mod field_grad;
 pub mod gpu;
+mod lanes;
 mod pass;
 mod reduce;
 mod walk;
@@ -266,6 +267,31 @@ pub fn f_diff<F: Real>(
     fwd: Option<&Forward<F>>,
     budget: &MemBudget,
 ) -> Result<Grads<F>> {
+    f_diff_kernel(cam, gen, params, up, opt, fwd, budget, Kernel::Lanes)
+}
+
+/// How the fused chain walks its rays backward.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Kernel {
+    /// 8 rays at a time in AVX2 lanes where they cover the pass
+    /// (`diff/lanes.rs`), else the scalar walk.
+    Lanes,
+    /// Ray by ray (the referee of the lanes; for measuring them).
+    Scalar,
+}
+
+/// [`f_diff`] with the walk chosen by `kernel` (same bits either way).
+#[allow(clippy::too_many_arguments)]
+pub fn f_diff_kernel<F: Real>(
+    cam: &Camera,
+    gen: &RayGen,
+    params: &VolumeParams,
+    up: &Upstream<F>,
+    opt: &DiffOptions,
+    fwd: Option<&Forward<F>>,
+    budget: &MemBudget,
+    kernel: Kernel,
+) -> Result<Grads<F>> {
     let m = params.march::<F>();
     m.validate()?;
     gen.validate()?;
@@ -338,7 +364,7 @@ pub fn f_diff<F: Real>(
         near: F::of(gen.near),
         far: F::of(gen.far),
     };
-    backward(&cx, buffers, opt, budget)
+    backward(&cx, buffers, opt, budget, kernel == Kernel::Lanes)
 }
 
 /// Whether the field has grid-shaped density gradients (else per sample or

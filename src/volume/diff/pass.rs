@@ -13,17 +13,22 @@ use super::super::fused_lanes::{query_of, LaneMarch, LANES};
 use super::super::integrate::Integrated;
 use super::super::sample::{walk_lattice, Samples};
 use super::field_grad::{param_count, param_index};
-use super::reduce::{push_rec, reduce_sorted, scatter_dense, sum_chunks, Unit, UNIT_RAYS};
+use super::lanes::{self, LaneGrad, Scratch};
+use super::reduce::{push_rec, reduce_sorted, scatter_dense, sum_chunks, Dense, Unit, UNIT_RAYS};
 use super::walk::{ray_grads, replay_fused, replay_fused_lanes, replay_unfused, Ctx};
 use super::{DiffOptions, Grads, Ksum, Rec, Reduce};
 
 /// The backward pass over the given forward state (module doc).
 #[allow(clippy::too_many_arguments)]
+/// `lane_backward`: the fused chain walks rays backward 8 at a time in
+/// AVX2 lanes where [`LaneGrad`] covers the pass (else, and with `false`,
+/// the scalar walk, the referee).
 pub(super) fn backward<F: Real>(
     cx: &Ctx<F>,
     buffers: Option<(&Samples<F>, &Integrated<F>)>,
     opt: &DiffOptions,
     budget: &MemBudget,
+    lane_backward: bool,
 ) -> Result<Grads<F>> {
     let n = cx.rays.len();
     if cx.up.rgb.len() != n
@@ -120,6 +125,11 @@ pub(super) fn backward<F: Real>(
     // they cover the medium (bit-identical records).
     let lanes = LaneMarch::new(cx.medium, cx.m, cx.occ).filter(|_| buffers.is_none());
     let query = query_of(cx.medium);
+    // ... and walk them backward in the same lanes (bit-identical gradients).
+    let lane_grad = match (lane_backward, &packed) {
+        (true, Some(p)) if !per_sample => LaneGrad::new(cx, lanes).map(|lg| (lg, *p)),
+        _ => None,
+    };
     let out_units: Vec<Unit<F>> = par_collect("f_diff", units.len(), |ui| {
         let (a, b) = units[ui];
         let mut u = Unit {
@@ -130,21 +140,45 @@ pub(super) fn backward<F: Real>(
             col_recs: vec![],
             pk_recs: vec![],
             sig_dense: match (sorted, packed, sig_grid) {
-                (false, None, Some(g)) => vec![F::zero(); g.data.len()],
-                _ => vec![],
+                (false, None, Some(g)) => Dense::grid::<1>(g),
+                _ => Dense::new(0, 1),
             },
             col_dense: match (sorted, packed, col_grid) {
-                (false, None, Some(g)) => vec![F::zero(); g.data.len()],
-                _ => vec![],
+                (false, None, Some(g)) => Dense::grid::<3>(g),
+                _ => Dense::new(0, 1),
             },
             pk_dense: match (sorted, packed) {
-                (false, Some(p)) => vec![F::zero(); p.data.len()],
-                _ => vec![],
+                (false, Some(p)) => Dense::grid::<4>(p),
+                _ => Dense::new(0, 1),
             },
-            hash_dense: vec![F::zero(); hash.map_or(0, |h| h.param_count())],
+            hash_dense: {
+                let n = hash.map_or(0, |h| h.param_count());
+                let mut d = Dense::new(n, n);
+                d.touch_all();
+                d
+            },
             per_sample: vec![],
             samples: 0,
         };
+        if let Some((lg, p)) = &lane_grad {
+            let mut sc = Scratch::default();
+            for first in (a..b).step_by(LANES) {
+                let len = LANES.min(b - first);
+                let cams = lanes::group(cx, lg, &query, first, len, &mut sc);
+                for (l, cam) in cams.into_iter().take(len).enumerate() {
+                    u.samples += sc.samples(l) as u64;
+                    sc.cells(l, !sorted, lg.ds(), |c, v| {
+                        if sorted {
+                            push_rec(p, Some(c), v, &mut u.pk_recs);
+                        } else {
+                            scatter_dense(p, Some(c), v, &mut u.pk_dense);
+                        }
+                    });
+                    u.cam.push(cam);
+                }
+            }
+            return u;
+        }
         let mut recs = Vec::new();
         let mut lane_recs: [Vec<Rec<F>>; LANES] = Default::default();
         let mut lane_log_t = [F::zero(); LANES];
@@ -171,7 +205,7 @@ pub(super) fn backward<F: Real>(
             // Records go out back to front; the sorted path wants (ray,
             // sample) order, so a ray's records are reversed after its walk.
             let (s0, c0, p0) = (u.sig_recs.len(), u.col_recs.len(), u.pk_recs.len());
-            let sink = hash.is_some().then_some(&mut u.hash_dense[..]);
+            let sink = hash.is_some().then_some(&mut u.hash_dense.data[..]);
             let cam = ray_grads(cx, r, &recs, log_tn, sink, |i, e| {
                 if let Some(p) = param_index(cx.field, e.x) {
                     u.param[p].add(e.dsigma);
@@ -251,7 +285,7 @@ pub(super) fn backward<F: Real>(
                 let parts = out_units.iter_mut().map(|u| std::mem::take(&mut u.pk_recs));
                 reduce_sorted(p, parts.collect())
             } else {
-                let parts: Vec<&[F]> = out_units.iter().map(|u| &u.pk_dense[..]).collect();
+                let parts: Vec<&Dense<F>> = out_units.iter().map(|u| &u.pk_dense).collect();
                 sum_chunks(&parts, p.data.len())
             };
             let sig = pk.chunks(4).map(|v| v[0]).collect();
@@ -274,17 +308,17 @@ pub(super) fn backward<F: Real>(
         ),
         (None, false) => (
             sig_grid.map(|g| {
-                let parts: Vec<&[F]> = out_units.iter().map(|u| &u.sig_dense[..]).collect();
+                let parts: Vec<&Dense<F>> = out_units.iter().map(|u| &u.sig_dense).collect();
                 sum_chunks(&parts, g.data.len())
             }),
             col_grid.map(|g| {
-                let parts: Vec<&[F]> = out_units.iter().map(|u| &u.col_dense[..]).collect();
+                let parts: Vec<&Dense<F>> = out_units.iter().map(|u| &u.col_dense).collect();
                 sum_chunks(&parts, g.data.len())
             }),
         ),
     };
     let dhash = hash.map(|h| {
-        let parts: Vec<&[F]> = out_units.iter().map(|u| &u.hash_dense[..]).collect();
+        let parts: Vec<&Dense<F>> = out_units.iter().map(|u| &u.hash_dense).collect();
         sum_chunks(&parts, h.param_count())
     });
     let (ps_s, ps_c) = split_per_sample(per_sample, &out_units);

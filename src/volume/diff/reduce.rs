@@ -42,20 +42,57 @@ pub(super) fn push_rec<F: Real, const C: usize>(
     }
 }
 
+/// A unit's dense gradient grid (chunked reduction) and the x-rows of
+/// nodes it touched: [`sum_chunks`] skips untouched rows (all zeros, their
+/// pages never faulted in), which leaves every sum's bits unchanged (a sum
+/// that starts at +0 is never -0, so adding +0 changes nothing).
+pub(super) struct Dense<F> {
+    pub(super) data: Vec<F>,
+    rows: Vec<bool>,
+    /// Elements per row.
+    row: usize,
+}
+
+impl<F: Real> Dense<F> {
+    /// `len` zeros in rows of `row` elements, none touched yet.
+    pub(super) fn new(len: usize, row: usize) -> Self {
+        let row = row.max(1);
+        Dense {
+            data: vec![F::zero(); len],
+            rows: vec![false; len.div_ceil(row)],
+            row,
+        }
+    }
+
+    /// For a grid of `C` channels per node: one row per x-row of nodes.
+    pub(super) fn grid<const C: usize>(g: &Grid<F>) -> Self {
+        Self::new(g.data.len(), g.nx * C)
+    }
+
+    /// Marks every row (a sink written element by element elsewhere).
+    pub(super) fn touch_all(&mut self) {
+        self.rows.fill(true);
+    }
+}
+
 pub(super) fn scatter_dense<F: Real, const C: usize>(
     g: &Grid<F>,
     cell: Option<Cell<F>>,
     v: [F; C],
-    out: &mut [F],
+    out: &mut Dense<F>,
 ) {
     let Some(c) = cell else {
         return;
     };
     if cell_inside(g, c.base) {
         let b = (c.base[2] as usize * g.ny + c.base[1] as usize) * g.nx + c.base[0] as usize;
+        let r = c.base[2] as usize * g.ny + c.base[1] as usize;
+        for q in [r, r + 1, r + g.ny, r + g.ny + 1] {
+            out.rows[q] = true;
+        }
         for (d, o) in corner_offsets(g).into_iter().enumerate() {
             let w = corner_weight(c.f, d);
-            let slot = &mut out[(b + o) * C..(b + o + 1) * C];
+            let slot = &mut out.data[(b + o) * C..(b + o + 1) * C];
             for ch in 0..C {
                 slot[ch] += w * v[ch];
             }
@@ -64,9 +101,10 @@ pub(super) fn scatter_dense<F: Real, const C: usize>(
     }
     for d in 0..8 {
         if let Some(node) = corner_node(g, c.base, d) {
+            out.rows[node / g.nx] = true;
             let w = corner_weight(c.f, d);
             for ch in 0..C {
-                out[node * C + ch] += w * v[ch];
+                out.data[node * C + ch] += w * v[ch];
             }
         }
     }
@@ -129,17 +167,27 @@ pub(super) fn reduce_sorted<F: Real, const C: usize>(
     out
 }
 
-/// Sums per-chunk dense grids in chunk order.
-pub(super) fn sum_chunks<F: Real>(parts: &[&[F]], len: usize) -> Vec<F> {
+/// Sums per-chunk dense grids in chunk order, skipping untouched rows
+/// ([`Dense`]).
+pub(super) fn sum_chunks<F: Real>(parts: &[&Dense<F>], len: usize) -> Vec<F> {
     let mut out = vec![F::zero(); len];
     crate::parallel::par_chunks("f_diff_chunk_sum", &mut out, 1 << 14, |ci, chunk| {
-        let first = ci << 14;
-        for (q, slot) in chunk.iter_mut().enumerate() {
-            let mut a = F::zero();
-            for p in parts {
-                a += p[first + q];
+        let (first, end) = (ci << 14, (ci << 14) + chunk.len());
+        for p in parts {
+            let mut e = first;
+            while e < end {
+                let r = e / p.row;
+                let stop = ((r + 1) * p.row).min(end);
+                if p.rows[r] {
+                    for (o, v) in chunk[e - first..stop - first]
+                        .iter_mut()
+                        .zip(&p.data[e..stop])
+                    {
+                        *o += *v;
+                    }
+                }
+                e = stop;
             }
-            *slot = a;
         }
     });
     out
@@ -154,11 +202,11 @@ pub(super) struct Unit<F> {
     pub(super) col_recs: Vec<GridRec<F, 3>>,
     /// Packed `[sigma, r, g, b]` records / dense grid (shared geometry).
     pub(super) pk_recs: Vec<GridRec<F, 4>>,
-    pub(super) sig_dense: Vec<F>,
-    pub(super) col_dense: Vec<F>,
-    pub(super) pk_dense: Vec<F>,
+    pub(super) sig_dense: Dense<F>,
+    pub(super) col_dense: Dense<F>,
+    pub(super) pk_dense: Dense<F>,
     /// dL/dparams of a hash field (flat order), dense per unit.
-    pub(super) hash_dense: Vec<F>,
+    pub(super) hash_dense: Dense<F>,
     pub(super) per_sample: Vec<(F, [F; 3])>,
     pub(super) samples: u64,
 }

@@ -6,7 +6,7 @@ use crate::real::Real;
 use crate::rng::rand_f64;
 
 use super::super::field::{ColorField, Field, Grid, Medium};
-use super::super::fused_lanes::{LaneMarch, LaneRay, LaneSample, LaneSink, Query, LANES};
+use super::super::fused_lanes::{LaneMarch, LaneRay, LaneSink, LaneStep, Query, LANES};
 use super::super::integrate::{Integrated, RayAcc};
 use super::super::occupancy::Occupancy;
 use super::super::sample::{walk_lattice, March, Samples, Sampling, TransPath};
@@ -93,32 +93,38 @@ pub(super) fn replay_fused_lanes<F: Real>(
     struct Sink<'a, F>(&'a mut [Vec<Rec<F>>; LANES]);
     impl<F: Real> LaneSink for Sink<'_, F> {
         const RECORD: bool = true;
-        fn sample(&mut self, lane: usize, s: LaneSample) {
+        fn step(&mut self, s: &LaneStep) {
             let f = |v: f32| F::of(v as f64);
-            self.0[lane].push(Rec {
-                k: s.k,
-                t: f(s.t),
-                dt: f(s.dt),
-                sigma: f(s.sigma),
-                c: s.c.map(f),
-                log_t: f(s.log_t),
-                alpha: f(s.alpha),
-            });
+            for l in (0..LANES).filter(|l| s.live & (1 << l) != 0) {
+                self.0[l].push(Rec {
+                    k: s.k,
+                    t: f(s.t[l]),
+                    dt: f(s.dt[l]),
+                    sigma: f(s.sigma[l]),
+                    c: [f(s.c[0][l]), f(s.c[1][l]), f(s.c[2][l])],
+                    log_t: f(s.log_t[l]),
+                    alpha: f(s.alpha[l]),
+                });
+            }
         }
     }
     recs.iter_mut().for_each(Vec::clear);
-    let rays = cx.rays;
+    let lane_rays = lane_rays(cx.rays, first, len);
+    let out = lm.march8_into(&lane_rays, query, &mut Sink(recs));
+    out.map(|(acc, _)| F::of(acc.log_t as f64))
+}
+
+/// Rays `first..first + len` in f32, as the lanes take them.
+pub(super) fn lane_rays<F: Real>(rays: &Rays<F>, first: usize, len: usize) -> Vec<LaneRay> {
     let f = |v: F| v.f64() as f32;
-    let lane_rays: Vec<LaneRay> = (first..first + len)
+    (first..first + len)
         .map(|r| LaneRay {
             o: rays.o[r].map(f),
             d: rays.d[r].map(f),
             t0: f(rays.t0[r]),
             t1: f(rays.t1[r]),
         })
-        .collect();
-    let out = lm.march8_into(&lane_rays, query, &mut Sink(recs));
-    out.map(|(acc, _)| F::of(acc.log_t as f64))
+        .collect()
 }
 
 /// Fills `recs` from the persisted buffers (unfused chain); lattice indices
@@ -278,11 +284,33 @@ pub(super) fn ray_grads<F: Real>(
             },
         );
     });
-    let (mut go_sum, mut gd_sum) = (go_k.map(|k| k.s), gd_k.map(|k| k.s));
-    let (dl_t0, dl_t1) = (dl_t0.s, dl_t1.s);
-    if !recs.is_empty() {
+    let sums = CamSums {
+        go: go_k.map(|k| k.s),
+        gd: gd_k.map(|k| k.s),
+        dl_t0: dl_t0.s,
+        dl_t1: dl_t1.s,
+    };
+    cam_grads(cx, r, !recs.is_empty(), sums)
+}
+
+/// A ray's compensated sums over its samples: `dL/do`, `dL/dd` through the
+/// sample positions, and `dL/dt0`, `dL/dt1`.
+#[derive(Clone, Copy, Debug, Default)]
+pub(super) struct CamSums<F> {
+    pub(super) go: [F; 3],
+    pub(super) gd: [F; 3],
+    pub(super) dl_t0: F,
+    pub(super) dl_t1: F,
+}
+
+/// Ray `r`'s `dL/d delta` from its sums (`any`: the ray has samples, so
+/// `t0`, `t1` move with the active clip planes).
+pub(super) fn cam_grads<F: Real>(cx: &Ctx<F>, r: usize, any: bool, s: CamSums<F>) -> [f64; 6] {
+    let (o, d) = (cx.rays.o[r], cx.rays.d[r]);
+    let (mut go_sum, mut gd_sum) = (s.go, s.gd);
+    if any {
         let (p0, p1) = clip_planes(o, d, cx.bmin, cx.bmax, cx.near, cx.far);
-        for ((t, mask), dl) in [(p0, dl_t0), (p1, dl_t1)] {
+        for ((t, mask), dl) in [(p0, s.dl_t0), (p1, s.dl_t1)] {
             let n = mask.iter().filter(|&&m| m).count();
             for a in (0..3).filter(|&a| mask[a]) {
                 let share = dl / F::of(n as f64);
