@@ -17,6 +17,7 @@ pub mod contour;
 pub mod dag;
 pub mod dxt;
 pub mod gpu;
+pub mod hits;
 pub mod mesh;
 pub mod node_order;
 pub mod octree;

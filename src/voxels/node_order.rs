@@ -97,8 +97,8 @@ pub fn breadth_first(dag: &Dag) -> Dag {
 mod tests {
     use super::*;
     use crate::budget::MemBudget;
-    use crate::voxels::cast::{cast_dag, Absolute, CastParams};
-    use crate::voxels::cast_lanes::cast_all_lanes;
+    use crate::voxels::cast::{cast_dag, Absolute, CastHit, CastParams};
+    use crate::voxels::cast_lanes::cast_lanes;
     use crate::voxels::dag::build_dag;
     use crate::voxels::octree::build;
     use crate::voxels::raysets::incoherent;
@@ -120,7 +120,8 @@ mod tests {
                 .map(|(o, d)| (o.map(|x| x as f32), d.map(|x| x as f32)))
                 .unzip();
             let p = CastParams::default();
-            let lanes = cast_all_lanes::<Absolute>(&b.nodes, depth, &o, &d, &p);
+            let mut lanes = vec![CastHit::miss(0, false); o.len()];
+            cast_lanes::<Absolute>(&b.nodes, depth, &o, &d, &p, &mut lanes);
             for i in 0..o.len() {
                 let a = cast_dag::<f32>(&g.nodes, depth, o[i], d[i], &p);
                 let c = cast_dag::<f32>(&b.nodes, depth, o[i], d[i], &p);

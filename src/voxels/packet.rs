@@ -22,8 +22,9 @@ use super::cast::{
     S_MAX,
 };
 use super::dag::Dag;
+use super::hits::collect;
 use super::octree::Octree;
-use super::render::{collect, VoxelHits};
+use super::render::VoxelHits;
 
 /// Lanes per packet.
 pub const W: usize = 8;
