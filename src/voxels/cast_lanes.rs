@@ -632,40 +632,16 @@ mod avx2 {
 mod tests {
     use super::*;
     use crate::budget::MemBudget;
-    use crate::rng::rand_f64;
-    use crate::voxels::cast::{cast_with, default_max_iter, Absolute, Lod, Relative};
+    use crate::voxels::cast::{cast_with, default_max_iter, Absolute, Relative};
     use crate::voxels::dag::build_dag;
+    use crate::voxels::fixtures::{hard_rays, lod, scenes};
     use crate::voxels::octree::build;
     use crate::voxels::shape::{Shape, VoxelBox};
-
-    /// Rays from outside and inside the box, some axis-parallel or
-    /// diagonal (ties), some grazing, some from one point (coherent).
-    fn rays(n: u32) -> (Vec<[f32; 3]>, Vec<[f32; 3]>) {
-        (0..n)
-            .map(|i| {
-                let u = |k: u32| rand_f64(9, i, 0, k);
-                let mut o = [0, 1, 2].map(|k| (-2.5 + 5.0 * u(k)) as f32);
-                let mut d = [0, 1, 2].map(|k| (-1.0 + 2.0 * u(3 + k)) as f32);
-                match i % 6 {
-                    0 => d = [0.0, 0.0, -1.0],
-                    1 => d = [1.0, 1.0, 1.0],
-                    2 => d[0] = 0.0,
-                    3 => {
-                        o = [0.3, 0.4, 2.5];
-                        d[2] = -2.0;
-                    }
-                    _ => {}
-                }
-                let n = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt().max(1e-6);
-                (o, d.map(|x| x / n))
-            })
-            .unzip()
-    }
 
     /// The lane cast on every [`LaneIsa`] this CPU has against the per-ray
     /// cast, every field of every ray.
     fn same<A: Addressing>(nodes: &[u32], depth: u32, p: &CastParams, what: &str) {
-        let (o, d) = rays(6000);
+        let (o, d) = hard_rays(6000, 9);
         for isa in LaneIsa::available(nodes.len()) {
             let mut lanes = vec![CastHit::miss(0, false); o.len()];
             cast_lanes_on::<A>(isa, nodes, depth, &o, &d, p, &mut lanes);
@@ -681,28 +657,6 @@ mod tests {
     fn lane_cast_is_bit_identical_to_the_per_ray_cast_on_octree_and_dag() {
         let avx2 = std::arch::is_x86_feature_detected!("avx2");
         assert!(LaneIsa::detect(1 << 20) >= LaneIsa::Avx2 || !avx2);
-        let boxes = vec![
-            VoxelBox {
-                min: [9, 3, 0],
-                max: [9, 3, 63],
-            },
-            VoxelBox {
-                min: [1, 1, 1],
-                max: [40, 50, 2],
-            },
-        ];
-        let shapes = [
-            (Shape::Sphere { radius: 0.8 }, 7),
-            (Shape::Menger { level: 4 }, 7),
-            (Shape::Boxes { boxes }, 6),
-        ];
-        let lod = CastParams {
-            lod: Some(Lod {
-                orig_size: 0.0,
-                dir_size: 0.01,
-            }),
-            ..CastParams::default()
-        };
         let interval = CastParams {
             near: 0.5,
             far: 2.5,
@@ -713,10 +667,10 @@ mod tests {
             max_iter: 9,
             ..CastParams::default()
         };
-        for (s, depth) in shapes {
+        for (s, depth) in scenes() {
             let t = build(&s, depth, &MemBudget::fixed(1 << 30)).unwrap();
             let g = build_dag(&t, &MemBudget::fixed(1 << 30)).unwrap();
-            for p in [CastParams::default(), lod, interval, capped] {
+            for p in [CastParams::default(), lod(0.01), interval, capped] {
                 same::<Relative>(&t.nodes, depth, &p, &format!("octree {s:?} {p:?}"));
                 same::<Absolute>(&g.nodes, depth, &p, &format!("dag {s:?} {p:?}"));
             }
