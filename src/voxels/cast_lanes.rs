@@ -140,7 +140,8 @@ mod avx2 {
 
     /// Lane groups per stream. Measured in one run (shared machine, 30
     /// interleaved rounds, sphere d10 and Menger d10, octree and DAG,
-    /// 2^18 rays): one group 0.92-1.02x of two, four 0.95-1.05x of two.
+    /// 2^18 rays, docs/PERF.md): one group 0.91-0.97x of two, four
+    /// 0.96-1.02x of two.
     const G: usize = 2;
 
     /// Stack entries per lane (scales 0..=S_MAX).
