@@ -21,7 +21,9 @@
 //! leaf, normal, level, attr and iterations are bit-identical to the
 //! per-ray cast, which stays the referee (unit tests below, cases
 //! `voxel_lanes_*_identical` in `TESTS/voxels/manifest_packet.yaml`).
-//! AVX2 is detected at run time; without it, or when the node array is too
+//! AVX2 is detected at run time ([`LaneIsa`]), and the same loop is also
+//! compiled with AVX-512F/VL (32 vector registers, mask blends; still eight
+//! lanes) where the CPU has it; without AVX2, or when the node array is too
 //! large for 32-bit gather indices, the SSE per-ray cast runs. No contours
 //! (the per-ray cast does them).
 

@@ -2,8 +2,9 @@
 //! parallel chunks: each chunk of rays is cast into a chunk-sized buffer and
 //! converted by the thread that cast it, so no `n`-long `CastHit` vector is
 //! built and no serial pass runs after the cast. (The serial conversion and
-//! the `vec![CastHit; n]` it needed took about a third of the lane cast's
-//! time at 2^18 rays: docs/PERF.md, issue 15.)
+//! the `vec![CastHit; n]` it needed were about a quarter of the lane cast's
+//! samples at 2048^2 rays on one thread; 1.0-1.08x wall at 2^18 rays on two:
+//! docs/PERF.md, issue 15.)
 
 use std::ops::Range;
 
