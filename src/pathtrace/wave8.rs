@@ -26,18 +26,8 @@ use super::shapes::{Quad, Shape, OFFSET_REL};
 use super::soa8::{Isa, Rays8, Soa8};
 use crate::pathtrace::bsdf::Material;
 
-/// One shape's shading data, gathered by shape index.
-#[derive(Clone, Copy, Debug, Default)]
-struct Row {
-    sphere: bool,
-    centre: [f32; 3],
-    radius: f32,
-    normal: [f32; 3],
-    area: f32,
-    kind: u32,
-    rgb: [f32; 3],
-    a: f32,
-}
+/// One shape and its material as `bsdf8` codes: kind, colour, scalar.
+type Shading = (Shape, u32, [f32; 3], f32);
 
 /// The scene's shading rows as columns, read per lane by shape index.
 struct Rows {
@@ -52,17 +42,43 @@ struct Rows {
 }
 
 impl Rows {
-    fn new(rows: &[Row]) -> Rows {
-        let f = |g: &dyn Fn(&Row) -> f32| Column::of_f32(rows.iter().map(g));
+    /// Per shape: sphere flag, centre and radius (spheres), normal and
+    /// area (quads), material kind, its colour and scalar (`bsdf8` codes).
+    fn new(scene: &Scene) -> Rows {
+        let rows: Vec<Shading> = (0..scene.shapes().len())
+            .map(|i| {
+                let (kind, rgb, a) = match scene.material(i) {
+                    Material::Lambertian { albedo } => (bsdf8::LAMBERT, albedo, 0.0),
+                    Material::RoughConductor { alpha, reflectance } => {
+                        (bsdf8::METAL, reflectance, alpha)
+                    }
+                    Material::Dielectric { ior } => (GLASS, Vec3A::ZERO, ior),
+                    Material::Emitter { radiance } => (LIGHT, radiance, 0.0),
+                };
+                (scene.shapes()[i], kind, rgb.to_array(), a)
+            })
+            .collect();
+        let f = |g: &dyn Fn(&Shading) -> f32| Column::of_f32(rows.iter().map(g));
+        let sphere = |r: &Shading| match r.0 {
+            Shape::Sphere(s) => Some(s),
+            Shape::Quad(_) => None,
+        };
+        let quad = |r: &Shading| match r.0 {
+            Shape::Quad(q) => Some(q),
+            Shape::Sphere(_) => None,
+        };
         Rows {
-            sphere: Column::new(rows.iter().map(|r| if r.sphere { u32::MAX } else { 0 })),
-            centre: [0, 1, 2].map(|a| f(&|r| r.centre[a])),
-            radius: f(&|r| r.radius),
-            normal: [0, 1, 2].map(|a| f(&|r| r.normal[a])),
-            area: f(&|r| r.area),
-            kind: Column::new(rows.iter().map(|r| r.kind)),
-            rgb: [0, 1, 2].map(|a| f(&|r| r.rgb[a])),
-            a: f(&|r| r.a),
+            sphere: Column::new(
+                rows.iter()
+                    .map(|r| if sphere(r).is_some() { u32::MAX } else { 0 }),
+            ),
+            centre: [0, 1, 2].map(|k| f(&|r| sphere(r).map_or(0.0, |s| s.centre[k]))),
+            radius: f(&|r| sphere(r).map_or(0.0, |s| s.radius)),
+            normal: [0, 1, 2].map(|k| f(&|r| quad(r).map_or(0.0, |q| q.normal()[k]))),
+            area: f(&|r| quad(r).map_or(0.0, |q| q.area())),
+            kind: Column::new(rows.iter().map(|r| r.1)),
+            rgb: [0, 1, 2].map(|k| f(&|r| r.2[k])),
+            a: f(&|r| r.3),
         }
     }
 }
@@ -112,31 +128,6 @@ struct Tables {
 
 impl Tables {
     fn new(scene: &Scene) -> Tables {
-        let rows: Vec<Row> = (0..scene.shapes().len())
-            .map(|i| {
-                let (kind, rgb, a) = match scene.material(i) {
-                    Material::Lambertian { albedo } => (bsdf8::LAMBERT, albedo, 0.0),
-                    Material::RoughConductor { alpha, reflectance } => {
-                        (bsdf8::METAL, reflectance, alpha)
-                    }
-                    Material::Dielectric { ior } => (GLASS, Vec3A::ZERO, ior),
-                    Material::Emitter { radiance } => (LIGHT, radiance, 0.0),
-                };
-                let mut r = Row {
-                    kind,
-                    rgb: rgb.to_array(),
-                    a,
-                    ..Row::default()
-                };
-                match scene.shapes()[i] {
-                    Shape::Sphere(s) => {
-                        (r.sphere, r.centre, r.radius) = (true, s.centre.to_array(), s.radius)
-                    }
-                    Shape::Quad(q) => (r.normal, r.area) = (q.normal().to_array(), q.area()),
-                }
-                r
-            })
-            .collect();
         let lights: Vec<(Quad, Vec3A)> = scene
             .lights()
             .iter()
@@ -148,7 +139,7 @@ impl Tables {
             )
             .collect();
         Tables {
-            rows: Rows::new(&rows),
+            rows: Rows::new(scene),
             lights: Lights::new(&lights),
             nl: lights.len(),
             env: scene.environment().to_array(),
