@@ -29,6 +29,75 @@ fn rand_f32(seed: u32, pixel: u32, sample: u32, dim: u32) -> f32 {
     return f32(rand_u32(seed, pixel, sample, dim) >> 8u) * 0x1p-24f;
 }
 
+// ---- padded 2-D Owen-scrambled Sobol' (Burley 2020) -------------------------
+// CPU twin: src/rng/sobol.rs `lk`, `owen`, `zeta`, `sobol2`, `sobol1`,
+// `unit_f32`; src/pathtrace/sampler.rs `sobol_pair` / `Sampler::table`
+// (`sampler_u32`). Parity case: TESTS/gpu/manifest.yaml
+// `gpu_sobol_matches_cpu` (bit-exact words and floats).
+
+fn sobol_lk(x_in: u32, seed: u32) -> u32 {
+    var x = x_in + seed;
+    x ^= x * 0x6c50b47cu;
+    x ^= x * 0xb82f1e52u;
+    x ^= x * 0xc7afe638u;
+    x ^= x * 0x8d22f6e6u;
+    return x;
+}
+
+fn sobol_owen(v: u32, seed: u32) -> u32 {
+    return reverseBits(sobol_lk(reverseBits(v), seed));
+}
+
+fn sobol_zeta(i: u32) -> u32 {
+    var y = i;
+    y ^= (y >> 1u) & 0x55555555u;
+    y ^= (y >> 2u) & 0x33333333u;
+    y ^= (y >> 4u) & 0x0f0f0f0fu;
+    y ^= (y >> 8u) & 0x00ff00ffu;
+    y ^= (y >> 16u) & 0x0000ffffu;
+    return y;
+}
+
+// pk = pcg(pcg(seed) ^ pixel); the pair (dim, dim + 1) of sample `index`.
+fn sobol2(pk: u32, index: u32, dim: u32) -> vec2<u32> {
+    let h = pcg(pk ^ dim);
+    let i = sobol_owen(index, h);
+    return vec2<u32>(
+        reverseBits(sobol_lk(i, h * 0x9e3779b9u)),
+        reverseBits(sobol_lk(sobol_zeta(i), h * 0x85ebca6bu)),
+    );
+}
+
+fn sobol1(pk: u32, index: u32, dim: u32) -> u32 {
+    let h = pcg(pk ^ dim);
+    return reverseBits(sobol_lk(sobol_owen(index, h), h * 0x9e3779b9u));
+}
+
+fn unit_f32(x: u32) -> f32 {
+    return f32(x >> 8u) * 0x1p-24f;
+}
+
+// The path tracer's dimension `dim` (src/pathtrace/sampler.rs `dims`):
+// sampler 0 = independent (rand_u32), 1 = Sobol' with the pairs (0, 1)
+// and, per vertex (2 + 8 k), offsets (1, 2) and (4, 5); the rest 1-D.
+fn sampler_u32(sampler: u32, seed: u32, pixel: u32, sample: u32, dim: u32) -> u32 {
+    if (sampler == 0u) {
+        return rand_u32(seed, pixel, sample, dim);
+    }
+    let pk = pcg(pcg(seed) ^ pixel);
+    if (dim < 2u) {
+        return sobol2(pk, sample, 0u)[dim];
+    }
+    let off = (dim - 2u) % 8u;
+    if (off == 1u || off == 4u) {
+        return sobol2(pk, sample, dim).x;
+    }
+    if (off == 2u || off == 5u) {
+        return sobol2(pk, sample, dim - 1u).y;
+    }
+    return sobol1(pk, sample, dim);
+}
+
 // ---- exp / expm1 / log-domain transmittance --------------------------------
 // CPU twin: f32::exp_m1 / f64::exp_m1 (libm). Parity case:
 // TESTS/gpu/manifest.yaml `gpu_expm1_rel_err` (relative error against f64).
@@ -118,7 +187,8 @@ struct CamParams {
     roi_y: u32,
     roi_w: u32,
     n: u32,
-    // 1 = jittered pixel positions (seed, sample), 0 = pixel centres.
+    // 1 = jittered pixel positions (seed, sample), 0 = pixel centres,
+    // 2 = jittered by the path tracer's Sobol' pair 0 (sampler.rs).
     jitter: u32,
     seed: u32,
     sample: u32,
@@ -154,6 +224,11 @@ fn camera_ray(c: CamParams, i: u32) -> Ray {
     if (c.jitter == 1u) {
         jx = rand_f32(c.seed, pixel, c.sample, 0u);
         jy = rand_f32(c.seed, pixel, c.sample, 1u);
+    }
+    if (c.jitter == 2u) {
+        let j = sobol2(pcg(pcg(c.seed) ^ pixel), c.sample, 0u);
+        jx = unit_f32(j.x);
+        jy = unit_f32(j.y);
     }
     let px = f32(u) + jx;
     let py = f32(v) + jy;

@@ -6,11 +6,12 @@
 // per path: `trace`, light sampling: `sample_light`); materials
 // src/pathtrace/bsdf.rs `Material::{eval, pdf, sample}`; shapes
 // src/pathtrace/shapes.rs `sphere_t`, `quad_t`, `intersect`, `occluded`,
-// `spawn_origin`. The same random numbers: rand(seed, pixel, sample, dim)
-// with the dimensions of integrator.rs `dims`.
+// `spawn_origin`. The same random numbers: src/pathtrace/sampler.rs
+// (`P.sampler`: rand(seed, pixel, sample, dim) or the padded Sobol') with
+// the dimensions of sampler.rs `dims`.
 // Parity case: TESTS/pathtrace/manifest_gpu.yaml `pt_gpu_cpu_parity_cornell`
 // (per-pixel z-test, Sidak), `pt_gpu_furnace_*`, `pt_gpu_rmse_ratio_*`,
-// `pt_gpu_render_deterministic`.
+// `pt_gpu_render_deterministic`, `pt_gpu_cpu_parity_sobol`.
 // Host side: src/gpu/pathtrace.rs (structs `PtShape`, `PtMaterial`,
 // `PtParams`, keep in sync).
 
@@ -26,15 +27,14 @@ const MAT_EMITTER: u32 = 3u;
 const OFFSET_REL: f32 = 2e-5;
 const PI: f32 = 3.14159265358979323846;
 const FRAC_1_PI: f32 = 0.318309886183790671538;
-// src/pathtrace/integrator.rs `dims`.
+// src/pathtrace/sampler.rs `dims` (LIGHT_V = LIGHT_U + 1, BSDF_V = BSDF_U + 1:
+// drawn as pairs by `rnd2`).
 const DIM_FIRST_VERTEX: u32 = 2u;
 const DIM_STRIDE: u32 = 8u;
 const DIM_LIGHT_CHOICE: u32 = 0u;
 const DIM_LIGHT_U: u32 = 1u;
-const DIM_LIGHT_V: u32 = 2u;
 const DIM_LOBE: u32 = 3u;
 const DIM_BSDF_U: u32 = 4u;
-const DIM_BSDF_V: u32 = 5u;
 const DIM_ROULETTE: u32 = 6u;
 
 // 112 bytes. Sphere: a = (centre, radius). Quad: a = (corner, area), u, v
@@ -75,7 +75,8 @@ struct PtParams {
     samples: u32,
     pixel0: u32,
     pixels: u32,
-    _pad0: u32,
+    // 0 = independent, 1 = Sobol' (src/pathtrace/sampler.rs `Sampler`).
+    sampler: u32,
     _pad1: u32,
     _pad2: u32,
 }
@@ -113,9 +114,29 @@ fn comp(v: vec3<f32>, k: u32) -> f32 {
     return v.z;
 }
 
-// integrator.rs `PathRng::f`: key = pcg(pcg(pcg(seed) ^ pixel) ^ sample).
-fn rnd(key: u32, dim: u32) -> f32 {
-    return f32(pcg(key ^ dim) >> 8u) * 0x1p-24f;
+// sampler.rs `PathRng`: independent key = pcg(pk ^ sample), Sobol' pixel
+// key pk = pcg(pcg(seed) ^ pixel) and the sample index.
+struct Rng {
+    key: u32,
+    pk: u32,
+    index: u32,
+}
+
+// sampler.rs `PathRng::f` for a 1-D dimension.
+fn rnd(r: Rng, dim: u32) -> f32 {
+    if (P.sampler == 1u) {
+        return unit_f32(sobol1(r.pk, r.index, dim));
+    }
+    return unit_f32(pcg(r.key ^ dim));
+}
+
+// sampler.rs `PathRng::f2`: dimensions dim and dim + 1 (a Sobol' pair).
+fn rnd2(r: Rng, dim: u32) -> vec2<f32> {
+    if (P.sampler == 1u) {
+        let w = sobol2(r.pk, r.index, dim);
+        return vec2<f32>(unit_f32(w.x), unit_f32(w.y));
+    }
+    return vec2<f32>(unit_f32(pcg(r.key ^ dim)), unit_f32(pcg(r.key ^ (dim + 1u))));
 }
 
 // integrator.rs `power`.
@@ -420,7 +441,7 @@ fn mat_sample(m: PtMaterial, wo: vec3<f32>, u_lobe: f32, u0: f32, u1: f32) -> Bs
 // ---- the integrator (integrator.rs) ------------------------------------------
 
 // integrator.rs `sample_light`: f |cos_i| Le w_l / p_l (without beta).
-fn sample_light(p: vec3<f32>, n: vec3<f32>, fr: Frame, wo: vec3<f32>, m: PtMaterial, key: u32, base: u32) -> vec3<f32> {
+fn sample_light(p: vec3<f32>, n: vec3<f32>, fr: Frame, wo: vec3<f32>, m: PtMaterial, key: Rng, base: u32) -> vec3<f32> {
     let nl = P.n_lights;
     let pick = min(u32(rnd(key, base + DIM_LIGHT_CHOICE) * f32(nl)), nl - 1u);
     let q = shapes[lights[pick]];
@@ -431,7 +452,8 @@ fn sample_light(p: vec3<f32>, n: vec3<f32>, fr: Frame, wo: vec3<f32>, m: PtMater
     if (em.kind != MAT_EMITTER) {
         return vec3<f32>(0.0);
     }
-    let x = q.a.xyz + rnd(key, base + DIM_LIGHT_U) * q.u.xyz + rnd(key, base + DIM_LIGHT_V) * q.v.xyz;
+    let uv = rnd2(key, base + DIM_LIGHT_U);
+    let x = q.a.xyz + uv.x * q.u.xyz + uv.y * q.v.xyz;
     let to = x - p;
     let dist2 = dot(to, to);
     if (dist2 == 0.0) {
@@ -457,7 +479,7 @@ fn sample_light(p: vec3<f32>, n: vec3<f32>, fr: Frame, wo: vec3<f32>, m: PtMater
 }
 
 // integrator.rs `trace`: radiance along the camera ray o + t d.
-fn trace(o_in: vec3<f32>, d_in: vec3<f32>, key: u32) -> vec3<f32> {
+fn trace(o_in: vec3<f32>, d_in: vec3<f32>, key: Rng) -> vec3<f32> {
     var o = o_in;
     var d = d_in;
     var l = vec3<f32>(0.0);
@@ -500,7 +522,8 @@ fn trace(o_in: vec3<f32>, d_in: vec3<f32>, key: u32) -> vec3<f32> {
         if (m.kind != MAT_DIELECTRIC && P.n_lights > 0u) {
             l += beta * sample_light(p, n, fr, wo, m, key, base);
         }
-        let s = mat_sample(m, wo, rnd(key, base + DIM_LOBE), rnd(key, base + DIM_BSDF_U), rnd(key, base + DIM_BSDF_V));
+        let ub = rnd2(key, base + DIM_BSDF_U);
+        let s = mat_sample(m, wo, rnd(key, base + DIM_LOBE), ub.x, ub.y);
         if (!s.ok) {
             break;
         }
@@ -541,8 +564,8 @@ fn pt_render(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgro
         var c = P.cam;
         c.sample = s;
         let r = camera_ray(c, pixel);
-        let key = pcg(pcg(pcg(P.seed) ^ pixel) ^ s);
-        var l = trace(r.o, r.d, key);
+        let pk = pcg(pcg(P.seed) ^ pixel);
+        var l = trace(r.o, r.d, Rng(pcg(pk ^ s), pk, s));
         if (!(finite(l.x) && finite(l.y) && finite(l.z))) {
             bad += 1.0;
             l = vec3<f32>(0.0);

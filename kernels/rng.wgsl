@@ -1,12 +1,14 @@
-// rng.wgsl: rand_u32 / rand_f32 over a list of keys (seed, pixel, sample, dim).
-// CPU twin: src/rng.rs `rand_u32`, `rand_f32` (the WGSL functions are in
-// common.wgsl). Parity case: TESTS/gpu/manifest.yaml `gpu_rng_matches_cpu`
+// rng.wgsl: the sampler's words and floats over a list of keys (seed, pixel,
+// sample, dim): `sampler` 0 = rand_u32 / rand_f32, 1 = the path tracer's
+// Sobol' (common.wgsl `sampler_u32`). CPU twin: src/rng.rs `rand_u32`,
+// `rand_f32`; src/pathtrace/sampler.rs `Sampler::table`. Parity cases:
+// TESTS/gpu/manifest.yaml `gpu_rng_matches_cpu`, `gpu_sobol_matches_cpu`
 // (memcmp: bit-identical words and floats).
 // Host side: src/gpu/math.rs (struct `TableParams`, keep in sync).
 
 struct TableParams {
     n: u32,
-    _pad0: u32,
+    sampler: u32,
     _pad1: u32,
     _pad2: u32,
 }
@@ -23,6 +25,7 @@ fn rng_table(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgro
         return;
     }
     let k = keys[i];
-    words[i] = rand_u32(k.x, k.y, k.z, k.w);
-    floats[i] = rand_f32(k.x, k.y, k.z, k.w);
+    let w = sampler_u32(P.sampler, k.x, k.y, k.z, k.w);
+    words[i] = w;
+    floats[i] = unit_f32(w);
 }

@@ -3,6 +3,8 @@
 //! nothing depends on thread scheduling. WGSL twin: `kernels/common.wgsl`
 //! `pcg` / `rand_u32` / `rand_f32` (when the GPU layer exists).
 
+pub mod sobol;
+
 /// The 32-bit PCG hash (PCG-RXS-M-XS as used by Jarzynski & Olano 2020):
 /// `s = v * 747796405 + 2891336453; w = ((s >> ((s >> 28) + 4)) ^ s) * 277803737;
 /// (w >> 22) ^ w`, all in wrapping u32 arithmetic.

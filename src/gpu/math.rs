@@ -1,7 +1,9 @@
 //! Parity tables for the shared WGSL math in `kernels/common.wgsl`:
-//! the SCENES.md random numbers (`kernels/rng.wgsl`, CPU twin
-//! [`crate::rng`]) and `expm1_f32` (`kernels/expm1.wgsl`, CPU twin
-//! `f32::exp_m1`). Parity cases `gpu_rng_matches_cpu` and
+//! the SCENES.md random numbers and the path tracer's Sobol' sampler
+//! (`kernels/rng.wgsl`, CPU twins [`crate::rng`] and
+//! `crate::pathtrace::sampler::Sampler::table`) and `expm1_f32` (`kernels/expm1.wgsl`, CPU twin
+//! `f32::exp_m1`). Parity cases `gpu_rng_matches_cpu`,
+//! `gpu_sobol_matches_cpu` and
 //! `gpu_expm1_rel_err` in `TESTS/gpu/manifest.yaml`.
 
 use bytemuck::{Pod, Zeroable};
@@ -17,7 +19,9 @@ use crate::error::{Error, Result};
 #[derive(Clone, Copy, Debug, Pod, Zeroable)]
 pub struct TableParams {
     pub n: u32,
-    pub _pad: [u32; 3],
+    /// `rng.wgsl`: 0 = `rand_u32`, 1 = Sobol' (`common.wgsl` `sampler_u32`).
+    pub sampler: u32,
+    pub _pad: [u32; 2],
 }
 const _: () = assert!(std::mem::size_of::<TableParams>() == 16);
 
@@ -25,11 +29,24 @@ fn count(label: &str, n: usize) -> Result<u32> {
     u32::try_from(n).map_err(|_| Error::invalid(label, format!("{n} entries is over 2^32")))
 }
 
-/// `(rand_u32, rand_f32)` of each key `[seed, pixel, sample, dim]`.
-pub fn rng_table(ctx: &GpuContext, keys: &[[u32; 4]]) -> Result<(Vec<u32>, Vec<f32>)> {
+/// The words and floats of sampler `sampler` (0: `rand_u32`, `rand_f32`;
+/// 1: the path tracer's Sobol') of each key `[seed, pixel, sample, dim]`.
+pub fn rng_table(
+    ctx: &GpuContext,
+    keys: &[[u32; 4]],
+    sampler: u32,
+) -> Result<(Vec<u32>, Vec<f32>)> {
     let n = count("rng_table keys", keys.len())?;
     let pipe = pipeline(ctx, "rng", "rng_table")?;
-    let u = uniform(ctx, "rng_table params", &TableParams { n, _pad: [0; 3] });
+    let u = uniform(
+        ctx,
+        "rng_table params",
+        &TableParams {
+            n,
+            sampler,
+            _pad: [0; 2],
+        },
+    );
     let k = storage_in(ctx, "rng_table keys", keys)?;
     let w = storage_out(ctx, "rng_table words", n as u64 * 4)?;
     let f = storage_out(ctx, "rng_table floats", n as u64 * 4)?;
@@ -51,7 +68,15 @@ pub fn expm1_table(ctx: &GpuContext, xs: &[f32]) -> Result<Vec<f32>> {
         return Err(Error::invalid("expm1_table xs", "arguments must be finite"));
     }
     let pipe = pipeline(ctx, "expm1", "expm1_table")?;
-    let u = uniform(ctx, "expm1_table params", &TableParams { n, _pad: [0; 3] });
+    let u = uniform(
+        ctx,
+        "expm1_table params",
+        &TableParams {
+            n,
+            sampler: 0,
+            _pad: [0; 2],
+        },
+    );
     let x = storage_in(ctx, "expm1_table xs", xs)?;
     let y = storage_out(ctx, "expm1_table ys", n as u64 * 4)?;
     let pass = Pass {
@@ -89,7 +114,7 @@ mod tests {
             .map(|i| [i.wrapping_mul(2654435761), i, i / 7, i % 13])
             .chain([[u32::MAX; 4], [0; 4]])
             .collect();
-        let (w, f) = rng_table(ctx, &keys).unwrap();
+        let (w, f) = rng_table(ctx, &keys, 0).unwrap();
         for (i, k) in keys.iter().enumerate() {
             assert_eq!(w[i], rng::rand_u32(k[0], k[1], k[2], k[3]), "key {k:?}");
             assert_eq!(
@@ -98,6 +123,9 @@ mod tests {
                 "key {k:?}"
             );
         }
+        let sobol = crate::pathtrace::sampler::Sampler::Sobol;
+        let (w, f) = rng_table(ctx, &keys, sobol.gpu_code()).unwrap();
+        assert_eq!((w, f), sobol.table(&keys));
     }
 
     #[test]

@@ -76,7 +76,8 @@ struct PtParams {
     samples: u32,
     pixel0: u32,
     pixels: u32,
-    _pad: [u32; 3],
+    sampler: u32,
+    _pad: [u32; 2],
 }
 const _: () = assert!(std::mem::size_of::<PtParams>() == 208);
 
@@ -99,6 +100,8 @@ pub struct PtRender {
     pub seed: u32,
     pub max_bounces: u32,
     pub rr_depth: u32,
+    /// `pathtrace::sampler::Sampler::gpu_code` (0 independent, 1 Sobol').
+    pub sampler: u32,
 }
 
 /// Per pixel (row-major): mean radiance, M2 (sum of squared deviations),
@@ -278,8 +281,13 @@ impl PathtracePipeline {
             samples: 0,
             pixel0: 0,
             pixels: 0,
-            _pad: [0; 3],
+            sampler: r.sampler,
+            _pad: [0; 2],
         };
+        if r.sampler == 1 {
+            // The camera jitter is the Sobol' pair 0 (common.wgsl `camera_ray`).
+            p.cam.jitter = 2;
+        }
         let (mut gpu_s, mut submits) = (0.0, 0u32);
         let mut s0 = 0u32;
         while s0 < r.spp {

@@ -162,9 +162,10 @@ pub struct Sample8 {
     pub eta2: F8,
 }
 
-/// `Material::sample` per lane for the lanes of `live` (others: not ok).
+/// `Material::sample` per lane for the lanes of `live` (others: not ok);
+/// `u_lobe` is drawn only where a lane needs it (glass).
 #[inline(always)]
-pub fn sample(m: &Mat8, live: M8, wo: V8, u_lobe: F8, u0: F8, u1: F8) -> Sample8 {
+pub fn sample(m: &Mat8, live: M8, wo: V8, u_lobe: impl FnOnce() -> F8, u0: F8, u1: F8) -> Sample8 {
     let (zero, one) = (f(0.0), f(1.0));
     let sz = wo.z.sign();
     // Lambertian: cosine hemisphere.
@@ -203,7 +204,7 @@ pub fn sample(m: &Mat8, live: M8, wo: V8, u_lobe: F8, u0: F8, u1: F8) -> Sample8
         let rp = (eta * c - ct) / (eta * c + ct);
         let fr = tir.select(one, f(0.5) * (rs * rs + rp * rp));
         let ct = tir.select(zero, ct);
-        let refl = u_lobe.lt(fr);
+        let refl = u_lobe().lt(fr);
         let wt = V8::new(-wo.x / eta, -wo.y / eta, -sz * ct);
         let wr = V8::new(-wo.x, -wo.y, wo.z);
         let w = refl.select(one, one / (eta * eta));

@@ -103,6 +103,7 @@ pub fn render_gpu(
         seed: p.seed,
         max_bounces: p.max_bounces,
         rr_depth: p.rr_depth,
+        sampler: p.sampler.gpu_code(),
     };
     let out = pipe.render(ctx, cam, &r, PATHS_PER_SUBMIT, budget)?;
     let k = p.spp as f32;

@@ -31,6 +31,7 @@ use glam::Vec3A;
 
 use super::bsdf::{Frame, Material};
 use super::packed::Packed;
+use super::sampler::{dims, PathRng, Sampler};
 use super::shapes::{spawn_origin, Shape};
 use super::soa8::{Isa, Soa8};
 use super::trace8::trace_paths8;
@@ -39,50 +40,6 @@ use crate::budget::{bytes_for, MemBudget};
 use crate::camera::RealCamera;
 use crate::error::{Error, Result};
 use crate::parallel::par_collect;
-use crate::rng::pcg;
-
-/// Which random dimension each decision uses. Dimensions 0 and 1 jitter the
-/// pixel position; vertex `k` (bounces behind it) uses `2 + STRIDE k + i`.
-pub mod dims {
-    pub const JITTER_X: u32 = 0;
-    pub const JITTER_Y: u32 = 1;
-    pub const FIRST_VERTEX: u32 = 2;
-    pub const STRIDE: u32 = 8;
-    pub const LIGHT_CHOICE: u32 = 0;
-    pub const LIGHT_U: u32 = 1;
-    pub const LIGHT_V: u32 = 2;
-    pub const LOBE: u32 = 3;
-    pub const BSDF_U: u32 = 4;
-    pub const BSDF_V: u32 = 5;
-    pub const ROULETTE: u32 = 6;
-}
-
-/// `rand(seed, pixel, sample, dim)` with the first three hashes done once
-/// per sample: `key = pcg(pcg(pcg(seed) ^ pixel) ^ sample)`, then
-/// `rand = pcg(key ^ dim)`, as a float `(rand >> 8) 2^-24`. The same numbers
-/// as `rng::rand_f32`.
-#[derive(Clone, Copy, Debug)]
-pub struct PathRng {
-    key: u32,
-}
-
-impl PathRng {
-    #[inline]
-    pub fn new(seed: u32, pixel: u32, sample: u32) -> PathRng {
-        PathRng {
-            key: pcg(pcg(pcg(seed) ^ pixel) ^ sample),
-        }
-    }
-    /// `pcg(pcg(pcg(seed) ^ pixel) ^ sample)`, the per-sample key.
-    #[inline]
-    pub fn key(&self) -> u32 {
-        self.key
-    }
-    #[inline]
-    pub fn f(&self, dim: u32) -> f32 {
-        (pcg(self.key ^ dim) >> 8) as f32 * (1.0 / 16_777_216.0)
-    }
-}
 
 /// A scene ready to trace: shapes, their materials, the lights (indices of
 /// shapes with an emitter material; quads only) and a uniform environment.
@@ -224,6 +181,8 @@ pub struct RenderParams {
     pub rr_depth: u32,
     /// Which CPU path traces the samples (the same image from each).
     pub tracer: Tracer,
+    /// Where the random numbers come from.
+    pub sampler: Sampler,
 }
 
 /// The CPU paths of the renderer; each gives the scalar path's image bit
@@ -323,7 +282,8 @@ pub fn light_sample(scene: &Scene, v: &Vertex, rng: &PathRng) -> Option<LightSam
     let Material::Emitter { radiance } = scene.material(li) else {
         return None;
     };
-    let x = q.point(rng.f(base + dims::LIGHT_U), rng.f(base + dims::LIGHT_V));
+    let [lu, lv] = rng.f2(base + dims::LIGHT_U);
+    let x = q.point(lu, lv);
     let to = x - v.p;
     let dist2 = to.length_squared();
     if dist2 == 0.0 {
@@ -452,7 +412,7 @@ impl PathState {
     #[inline]
     pub fn scatter(&mut self, v: &Vertex, rng: &PathRng, rr_depth: u32) -> bool {
         let base = v.base;
-        let u = [rng.f(base + dims::BSDF_U), rng.f(base + dims::BSDF_V)];
+        let u = rng.f2(base + dims::BSDF_U);
         let Some(s) = v.mat.sample(v.wo, rng.f(base + dims::LOBE), u) else {
             return false;
         };
@@ -538,8 +498,8 @@ impl Sums {
 /// uniformly in the pixel (box filter).
 #[inline]
 fn camera_ray(cam: &RealCamera<f32>, u: u32, v: u32, rng: &PathRng) -> (Vec3A, Vec3A) {
-    let px = u as f32 + rng.f(dims::JITTER_X);
-    let py = v as f32 + rng.f(dims::JITTER_Y);
+    let [jx, jy] = rng.f2(dims::JITTER_X);
+    let (px, py) = (u as f32 + jx, v as f32 + jy);
     let (o, d) = cam.ray(px, py);
     (Vec3A::from_array(o), Vec3A::from_array(d))
 }
@@ -562,7 +522,7 @@ fn row_sums(
         for (i, s) in sums.iter_mut().enumerate() {
             let u = u0 + i as u32;
             for k in 0..p.spp {
-                let rng = PathRng::new(p.seed, v * p.width + u, k);
+                let rng = PathRng::of(p.sampler, p.seed, v * p.width + u, k);
                 let (o, d) = camera_ray(cam, u, v, &rng);
                 s.add(trace(scene, o, d, &rng, p.max_bounces, p.rr_depth));
             }
@@ -576,14 +536,14 @@ fn row_sums(
         let start = |j: usize| {
             let (i, k) = ((b0 + j) / spp, (b0 + j) % spp);
             let u = u0 + i as u32;
-            let rng = PathRng::new(p.seed, v * p.width + u, k as u32);
+            let rng = PathRng::of(p.sampler, p.seed, v * p.width + u, k as u32);
             let (o, d) = camera_ray(cam, u, v, &rng);
             (o, d, rng)
         };
         let out = &mut buf[..n];
         match p.tracer {
             Tracer::Packet => trace_paths8(scene, start, p.max_bounces, p.rr_depth, out),
-            _ => trace_paths_wave8(scene, start, p.max_bounces, p.rr_depth, out),
+            _ => trace_paths_wave8(scene, start, (p.max_bounces, p.rr_depth), p.sampler, out),
         }
         for (j, &l) in buf[..n].iter().enumerate() {
             sums[(b0 + j) / spp].add(l);
@@ -668,17 +628,6 @@ mod tests {
     use super::*;
     use crate::camera::Camera;
     use crate::pathtrace::shapes::{Quad, Sphere};
-    use crate::rng::rand_f32;
-
-    #[test]
-    fn path_rng_matches_the_scenes_md_function() {
-        for i in 0..5000u32 {
-            let r = PathRng::new(7, i, i / 7);
-            for d in [0, 1, 2, 77, 400] {
-                assert_eq!(r.f(d), rand_f32(7, i, i / 7, d));
-            }
-        }
-    }
 
     fn furnace(mat: Material) -> (Scene, RealCamera<f32>) {
         let s = Shape::Sphere(Sphere {
@@ -700,6 +649,7 @@ mod tests {
             max_bounces: 64,
             rr_depth: 5,
             tracer: Tracer::Wavefront,
+            sampler: Sampler::Independent,
         }
     }
 

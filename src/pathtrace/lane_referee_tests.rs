@@ -8,6 +8,7 @@ use crate::budget::MemBudget;
 use crate::camera::Camera;
 use crate::pathtrace::bsdf::Material;
 use crate::pathtrace::integrator::{render, RenderParams, Scene, Tracer};
+use crate::pathtrace::sampler::Sampler;
 use crate::pathtrace::shapes::{Quad, Shape, Sphere};
 
 /// Two lights (one coloured), a floor, a metal, a glass and a diffuse
@@ -52,13 +53,18 @@ pub fn test_scene() -> Scene {
     Scene::new(&objs, mats, [0.1, 0.2, 0.3]).unwrap()
 }
 
-/// `tracer` renders [`test_scene`] as the scalar path does, bit for bit.
+/// `tracer` renders [`test_scene`] as the scalar path does, bit for bit,
+/// with each sampler.
 /// 24 x 24 at 13 spp: a partial tile, packets spanning pixels, a last packet
 /// of fewer than eight paths; 17 x 2 at 300 spp: a batch of BATCH paths ends
 /// inside a pixel (16 x 300 > 4096).
 pub fn assert_renders_as_scalar(tracer: Tracer) {
     let scene = test_scene();
-    for (w, h, spp) in [(24, 24, 13), (17, 2, 300)] {
+    let samplers = [Sampler::Independent, Sampler::Sobol];
+    for ((w, h, spp), sampler) in [(24, 24, 13), (17, 2, 300)]
+        .into_iter()
+        .flat_map(|c| samplers.map(|s| (c, s)))
+    {
         let cam = Camera::pinhole_look_at([0.0, 0.0, 4.0], [0.0; 3], [0.0, 1.0, 0.0], 40.0, w, h)
             .unwrap()
             .to_real(w, h);
@@ -70,6 +76,7 @@ pub fn assert_renders_as_scalar(tracer: Tracer) {
             max_bounces: 64,
             rr_depth: 2,
             tracer,
+            sampler,
         };
         let b = MemBudget::fixed(1 << 30);
         let a = render(&scene, &cam, &p, &b).unwrap();

@@ -196,7 +196,7 @@ impl U8 {
     pub fn ge(self, o: U8) -> M8 {
         M8(zip(self.0, o.0, |a, b| mask(a >= b)))
     }
-    /// `rand` of [`super::integrator::PathRng::f`] per lane: keys `self`,
+    /// `rand` of [`super::sampler::PathRng::f`] (independent) per lane: keys `self`,
     /// dimensions `dim`: `(pcg(key ^ dim) >> 8) 2^-24`.
     #[inline(always)]
     pub fn rand(self, dim: U8) -> F8 {

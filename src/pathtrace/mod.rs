@@ -4,7 +4,7 @@
 //! Stages, after the seed's components: [`shapes`] (geometry: spheres,
 //! quads, the one intersection function; [`packed`] runs it four shapes at
 //! a time for rendering), [`bsdf`] (materials: a closed
-//! enum), [`integrator`] (NEE + MIS path loop, Russian roulette, tiles over
+//! enum), [`integrator`] (NEE + MIS path loop, random numbers from [`sampler`], Russian roulette, tiles over
 //! rayon), [`gpu`] (the same render on the GPU: `kernels/pathtrace.wgsl`),
 //! [`soa8`] and [`trace8`] (paths eight at a time, lanes refilled as paths
 //! end, SIMD across rays), [`wave8`] with [`lanes`] and [`bsdf8`] (whole
@@ -27,6 +27,7 @@ pub mod listed;
 pub mod outputs;
 pub mod packed;
 pub mod referee;
+pub mod sampler;
 pub mod shapes;
 pub mod soa8;
 pub mod trace8;

@@ -14,7 +14,8 @@
 
 use glam::Vec3A;
 
-use super::integrator::{light_sample, PathRng, PathState, Scene, Vertex};
+use super::integrator::{light_sample, PathState, Scene, Vertex};
+use super::sampler::PathRng;
 use super::soa8::{lane, Rays8, LANES};
 
 /// Lane `k` of `r` set to the ray `o + t d`.

@@ -19,24 +19,15 @@
 use glam::Vec3A;
 
 use super::bsdf8::{self, Frame8, Mat8, GLASS, LIGHT};
-use super::integrator::{dims, PathRng, Scene};
+use super::integrator::Scene;
 use super::lanes::{Column, F8, LANES, M8, U8, V8};
+use super::sampler::{dims, PathRng, Rng8, Sampler};
 use super::shapes::{Quad, Shape, OFFSET_REL};
 use super::soa8::{Isa, Rays8, Soa8};
 use crate::pathtrace::bsdf::Material;
 
-/// One shape's shading data, gathered by shape index.
-#[derive(Clone, Copy, Debug, Default)]
-struct Row {
-    sphere: bool,
-    centre: [f32; 3],
-    radius: f32,
-    normal: [f32; 3],
-    area: f32,
-    kind: u32,
-    rgb: [f32; 3],
-    a: f32,
-}
+/// One shape and its material as `bsdf8` codes: kind, colour, scalar.
+type Shading = (Shape, u32, [f32; 3], f32);
 
 /// The scene's shading rows as columns, read per lane by shape index.
 struct Rows {
@@ -51,17 +42,43 @@ struct Rows {
 }
 
 impl Rows {
-    fn new(rows: &[Row]) -> Rows {
-        let f = |g: &dyn Fn(&Row) -> f32| Column::of_f32(rows.iter().map(g));
+    /// Per shape: sphere flag, centre and radius (spheres), normal and
+    /// area (quads), material kind, its colour and scalar (`bsdf8` codes).
+    fn new(scene: &Scene) -> Rows {
+        let rows: Vec<Shading> = (0..scene.shapes().len())
+            .map(|i| {
+                let (kind, rgb, a) = match scene.material(i) {
+                    Material::Lambertian { albedo } => (bsdf8::LAMBERT, albedo, 0.0),
+                    Material::RoughConductor { alpha, reflectance } => {
+                        (bsdf8::METAL, reflectance, alpha)
+                    }
+                    Material::Dielectric { ior } => (GLASS, Vec3A::ZERO, ior),
+                    Material::Emitter { radiance } => (LIGHT, radiance, 0.0),
+                };
+                (scene.shapes()[i], kind, rgb.to_array(), a)
+            })
+            .collect();
+        let f = |g: &dyn Fn(&Shading) -> f32| Column::of_f32(rows.iter().map(g));
+        let sphere = |r: &Shading| match r.0 {
+            Shape::Sphere(s) => Some(s),
+            Shape::Quad(_) => None,
+        };
+        let quad = |r: &Shading| match r.0 {
+            Shape::Quad(q) => Some(q),
+            Shape::Sphere(_) => None,
+        };
         Rows {
-            sphere: Column::new(rows.iter().map(|r| if r.sphere { u32::MAX } else { 0 })),
-            centre: [0, 1, 2].map(|a| f(&|r| r.centre[a])),
-            radius: f(&|r| r.radius),
-            normal: [0, 1, 2].map(|a| f(&|r| r.normal[a])),
-            area: f(&|r| r.area),
-            kind: Column::new(rows.iter().map(|r| r.kind)),
-            rgb: [0, 1, 2].map(|a| f(&|r| r.rgb[a])),
-            a: f(&|r| r.a),
+            sphere: Column::new(
+                rows.iter()
+                    .map(|r| if sphere(r).is_some() { u32::MAX } else { 0 }),
+            ),
+            centre: [0, 1, 2].map(|k| f(&|r| sphere(r).map_or(0.0, |s| s.centre[k]))),
+            radius: f(&|r| sphere(r).map_or(0.0, |s| s.radius)),
+            normal: [0, 1, 2].map(|k| f(&|r| quad(r).map_or(0.0, |q| q.normal()[k]))),
+            area: f(&|r| quad(r).map_or(0.0, |q| q.area())),
+            kind: Column::new(rows.iter().map(|r| r.1)),
+            rgb: [0, 1, 2].map(|k| f(&|r| r.2[k])),
+            a: f(&|r| r.3),
         }
     }
 }
@@ -111,31 +128,6 @@ struct Tables {
 
 impl Tables {
     fn new(scene: &Scene) -> Tables {
-        let rows: Vec<Row> = (0..scene.shapes().len())
-            .map(|i| {
-                let (kind, rgb, a) = match scene.material(i) {
-                    Material::Lambertian { albedo } => (bsdf8::LAMBERT, albedo, 0.0),
-                    Material::RoughConductor { alpha, reflectance } => {
-                        (bsdf8::METAL, reflectance, alpha)
-                    }
-                    Material::Dielectric { ior } => (GLASS, Vec3A::ZERO, ior),
-                    Material::Emitter { radiance } => (LIGHT, radiance, 0.0),
-                };
-                let mut r = Row {
-                    kind,
-                    rgb: rgb.to_array(),
-                    a,
-                    ..Row::default()
-                };
-                match scene.shapes()[i] {
-                    Shape::Sphere(s) => {
-                        (r.sphere, r.centre, r.radius) = (true, s.centre.to_array(), s.radius)
-                    }
-                    Shape::Quad(q) => (r.normal, r.area) = (q.normal().to_array(), q.area()),
-                }
-                r
-            })
-            .collect();
         let lights: Vec<(Quad, Vec3A)> = scene
             .lights()
             .iter()
@@ -147,7 +139,7 @@ impl Tables {
             )
             .collect();
         Tables {
-            rows: Rows::new(&rows),
+            rows: Rows::new(scene),
             lights: Lights::new(&lights),
             nl: lights.len(),
             env: scene.environment().to_array(),
@@ -166,7 +158,7 @@ struct Paths {
     prev_pdf: F8,
     prev_delta: M8,
     bounces: U8,
-    key: U8,
+    rng: Rng8,
 }
 
 impl Paths {
@@ -181,7 +173,7 @@ impl Paths {
         self.prev_pdf.0[k] = 0.0;
         self.prev_delta.0[k] = u32::MAX;
         self.bounces.0[k] = 0;
-        self.key.0[k] = rng.key();
+        self.rng.set_lane(k, &rng);
     }
 
     fn rays(&self) -> Rays8 {
@@ -218,13 +210,19 @@ fn light_sample(
     m: M8,
     (p, n, fr, wo): (V8, V8, &Frame8, V8),
     mat: &Mat8,
-    (key, base): (U8, U8),
+    (rng, sobol, base): (&Rng8, bool, U8),
+    (ua, vb): (F8, F8),
     avx2: bool,
 ) -> (M8, V8, V8, F8, V8) {
     let nl = tab.nl;
     let nlf = F8::splat(nl as f32);
-    let u = key.rand(base + U8::splat(dims::LIGHT_CHOICE));
-    let pick = (u * nlf).to_i32().min(U8::splat(nl as u32 - 1));
+    // One light: every choice picks it (the number is not drawn).
+    let pick = match nl {
+        1 => U8::splat(0),
+        _ => (rng.f(sobol, base + U8::splat(dims::LIGHT_CHOICE)) * nlf)
+            .to_i32()
+            .min(U8::splat(nl as u32 - 1)),
+    };
     let lt = &tab.lights;
     let (c, eu, ev, ln) = (
         get3(&lt.corner, pick, avx2),
@@ -233,8 +231,6 @@ fn light_sample(
         get3(&lt.normal, pick, avx2),
     );
     let (area, rad) = (lt.area.get_f(pick, avx2), get3(&lt.radiance, pick, avx2));
-    let ua = key.rand(base + U8::splat(dims::LIGHT_U));
-    let vb = key.rand(base + U8::splat(dims::LIGHT_V));
     let x = c + eu.scale(ua) + ev.scale(vb);
     let to = x - p;
     let dist2 = to.dot(to);
@@ -257,11 +253,11 @@ fn light_sample(
 pub fn trace_paths_wave8(
     scene: &Scene,
     start: impl Fn(usize) -> (Vec3A, Vec3A, PathRng),
-    max_bounces: u32,
-    rr_depth: u32,
+    limits: (u32, u32),
+    sampler: Sampler,
     out: &mut [Vec3A],
 ) {
-    trace_on(scene, scene.soa(), &start, (max_bounces, rr_depth), out)
+    trace_on(scene, scene.soa(), &start, (limits, sampler), out)
 }
 
 /// [`trace_paths_wave8`] with the shape tests `soa`, the loop compiled for
@@ -270,7 +266,7 @@ fn trace_on<F: Fn(usize) -> (Vec3A, Vec3A, PathRng)>(
     scene: &Scene,
     soa: &Soa8,
     start: &F,
-    limits: (u32, u32),
+    limits: ((u32, u32), Sampler),
     out: &mut [Vec3A],
 ) {
     let tab = Tables::new(scene);
@@ -294,7 +290,7 @@ unsafe fn run_avx2<F: Fn(usize) -> (Vec3A, Vec3A, PathRng)>(
     soa: &Soa8,
     tab: &Tables,
     start: &F,
-    limits: (u32, u32),
+    limits: ((u32, u32), Sampler),
     out: &mut [Vec3A],
 ) {
     run::<true, F>(soa, tab, start, limits, out)
@@ -312,7 +308,7 @@ unsafe fn run_avx512<F: Fn(usize) -> (Vec3A, Vec3A, PathRng)>(
     soa: &Soa8,
     tab: &Tables,
     start: &F,
-    limits: (u32, u32),
+    limits: ((u32, u32), Sampler),
     out: &mut [Vec3A],
 ) {
     run::<true, F>(soa, tab, start, limits, out)
@@ -325,9 +321,10 @@ fn run<const AVX2: bool, F: Fn(usize) -> (Vec3A, Vec3A, PathRng)>(
     soa: &Soa8,
     tab: &Tables,
     start: &F,
-    (max_bounces, rr_depth): (u32, u32),
+    ((max_bounces, rr_depth), sampler): ((u32, u32), Sampler),
     out: &mut [Vec3A],
 ) {
+    let sobol = sampler == Sampler::Sobol;
     let mut s = Paths::default();
     let mut job = [0usize; LANES];
     let (mut next, mut active) = (0usize, 0u8);
@@ -346,6 +343,11 @@ fn run<const AVX2: bool, F: Fn(usize) -> (Vec3A, Vec3A, PathRng)>(
         if active == 0 {
             return;
         }
+        // The vertex's 2-D numbers, drawn before the intersection test
+        // (they depend on the path only) so their hash chains overlap it.
+        let base = U8::splat(dims::FIRST_VERTEX) + U8::splat(dims::STRIDE).mul(s.bounces);
+        let light_uv = s.rng.f2(sobol, base + U8::splat(dims::LIGHT_U));
+        let (bu, bv) = s.rng.f2(sobol, base + U8::splat(dims::BSDF_U));
         let (t, id) = soa.intersect8(&s.rays(), active);
         let act = M8::from_bits(active);
         let hit = act & !U8(id).eq(U8::splat(u32::MAX));
@@ -379,12 +381,18 @@ fn run<const AVX2: bool, F: Fn(usize) -> (Vec3A, Vec3A, PathRng)>(
         s.l = front.select_v(s.l + (s.beta * mat.rgb).scale(w), s.l);
         let deep = hit & !emit & s.bounces.ge(U8::splat(max_bounces));
         let vert = hit & !emit & !deep;
-        let base = U8::splat(dims::FIRST_VERTEX) + U8::splat(dims::STRIDE).mul(s.bounces);
         // Light sampling and the eight shadow rays.
         let nee = vert & !mat.is(GLASS);
         if tab.nl > 0 && nee.any() {
-            let (ok, so, swi, tmax, value) =
-                light_sample(tab, nee, (p, n, &fr, wo), &mat, (s.key, base), AVX2);
+            let (ok, so, swi, tmax, value) = light_sample(
+                tab,
+                nee,
+                (p, n, &fr, wo),
+                &mat,
+                (&s.rng, sobol, base),
+                light_uv,
+                AVX2,
+            );
             let shadow = Rays8 {
                 o: [so.x.0, so.y.0, so.z.0],
                 d: [swi.x.0, swi.y.0, swi.z.0],
@@ -398,16 +406,10 @@ fn run<const AVX2: bool, F: Fn(usize) -> (Vec3A, Vec3A, PathRng)>(
             s.l = nee.select_v(s.l + s.beta * add, s.l);
         }
         // BSDF sampling (`PathState::scatter`) and Russian roulette.
-        let key = s.key;
+        let rng = s.rng;
         let r = |d: u32| base + U8::splat(d);
-        let bs = bsdf8::sample(
-            &mat,
-            vert,
-            wo,
-            key.rand(r(dims::LOBE)),
-            key.rand(r(dims::BSDF_U)),
-            key.rand(r(dims::BSDF_V)),
-        );
+        let lobe = || rng.f(sobol, r(dims::LOBE));
+        let bs = bsdf8::sample(&mat, vert, wo, lobe, bu, bv);
         let go = vert & bs.ok;
         s.beta = go.select_v(s.beta * bs.weight, s.beta);
         s.eta2 = go.select(s.eta2 * bs.eta2, s.eta2);
@@ -419,7 +421,10 @@ fn run<const AVX2: bool, F: Fn(usize) -> (Vec3A, Vec3A, PathRng)>(
         s.bounces = go.select_u(s.bounces + U8::splat(1), s.bounces);
         let rr = go & s.bounces.ge(U8::splat(rr_depth));
         let q = (s.beta.scale(s.eta2)).max_element().min(F8::splat(0.95));
-        let live = rr & key.rand(r(dims::ROULETTE)).lt(q);
+        let live = match rr.any() {
+            true => rr & rng.f(sobol, r(dims::ROULETTE)).lt(q),
+            false => M8::default(),
+        };
         s.beta = live.select_v(s.beta.div(q), s.beta);
         let ended = (act & !go) | (rr & !live);
         let bits = ended.bits();
@@ -456,13 +461,19 @@ mod tests {
             (Vec3A::from_array(o), Vec3A::from_array(d), rng)
         };
         let mut a = vec![Vec3A::ZERO; 448];
-        trace_paths_wave8(&scene, start, 64, 2, &mut a);
+        trace_paths_wave8(&scene, start, (64, 2), Sampler::Independent, &mut a);
         assert!(a.iter().any(|x| x.x > 0.0));
         for isa in Isa::available() {
             let soa = Soa8::new(scene.shapes(), isa);
             assert_eq!(soa.isa(), isa);
             let mut b = vec![Vec3A::ZERO; 448];
-            trace_on(&scene, &soa, &start, (64, 2), &mut b);
+            trace_on(
+                &scene,
+                &soa,
+                &start,
+                ((64, 2), Sampler::Independent),
+                &mut b,
+            );
             assert_eq!(a, b, "{}", isa.name());
         }
     }

@@ -8,6 +8,7 @@
 //! | `max_bounces` | most scattering events on a path (camera ray hitting a light = 0) | 64 |
 //! | `rr_depth` | bounces before Russian roulette starts | 5 |
 //! | `tracer` | `wavefront` (paths 8 at a time, whole vertices in 8 SIMD lanes), `packet` (8 rays per intersection test, shading per lane) or `scalar` (one path at a time, the referee); the same image from each | wavefront |
+//! | `sampler` | `{type: independent}` (`rand(seed, pixel, sample, dim)`, one hash per dimension) or `{type: sobol}` (padded 2-D Owen-scrambled Sobol' after Burley 2020: pixel jitter, light point and BSDF direction as 2-D pairs; lower error at equal spp); a pure function of (seed, pixel, sample, dim) either way, the same on every tracer and the GPU | independent |
 //! | `environment` | uniform radiance of every ray that leaves the scene | [0, 0, 0] |
 //! | `materials` | name -> material (below) | required |
 //! | `shapes` | list of shapes (below) | required |
@@ -32,6 +33,7 @@ use super::SceneDoc;
 use crate::camera::Camera;
 use crate::error::{Error, Result};
 use crate::pathtrace::integrator::Tracer;
+use crate::pathtrace::sampler::Sampler;
 use crate::pathtrace::{Material, Quad, RenderParams, Scene, Shape, Sphere};
 
 fn default_spp() -> u32 {
@@ -90,6 +92,8 @@ pub struct PathtraceRest {
     pub rr_depth: u32,
     #[serde(default)]
     pub tracer: Tracer,
+    #[serde(default)]
+    pub sampler: Sampler,
     #[serde(default)]
     pub environment: [f32; 3],
     pub materials: BTreeMap<String, MaterialSpec>,
@@ -196,6 +200,7 @@ pub fn parse(doc: &SceneDoc) -> Result<PathtraceScene> {
         max_bounces: rest.max_bounces,
         rr_depth: rest.rr_depth,
         tracer: rest.tracer,
+        sampler: rest.sampler,
     };
     params
         .validate()

@@ -7,10 +7,12 @@ use serde::Deserialize;
 use super::{BackendKind, OpCtx};
 use crate::camera::Camera;
 use crate::error::{Error, Result};
+use crate::gpu;
+use crate::pathtrace::sampler::Sampler;
 use crate::rays::referee::{clip_list_reference, clip_reference};
 use crate::rays::{clip_list_in, clip_list_outputs, f_ray, Aabb, RayGen, Rays};
 use crate::real::{Precision, Real};
-use crate::rng::{rand_table, table_keys};
+use crate::rng::table_keys;
 use crate::tensor::{ListedTensor, Outputs, Tensor};
 
 ops! {
@@ -23,8 +25,8 @@ ops! {
     "rays.clip_list_reference" Any clip_list_reference_op ["rays", "aabb", "near", "far"]
         "independent f64 face-intersection clip of params.rays";
     "rays.jitter_offsets" Cpu jitter_offsets [] "jittered pixel offsets (x and y in [0,1)) of a rays scene with jitter";
-    "rays.rng_table" CpuGpuF32 rng_table ["seeds", "pixels", "samples", "dims"]
-        "rand_u32 and rand_f32 for seeds x pixels x samples x dims in params";
+    "rays.rng_table" CpuGpuF32 rng_table ["seeds", "pixels", "samples", "dims", "sampler"]
+        "params.sampler's words and floats (default rand_u32, rand_f32) for seeds x pixels x samples x dims";
     "rays.expm1_table" CpuGpuF32 expm1_table ["xs"]
         "expm1(x) for x in params.xs: CPU f32/f64 libm, GPU common.wgsl expm1_f32";
     "const" Any constant ["tensors"] "tensors given literally in params.tensors: {name: {dtype, shape, data}}";
@@ -67,8 +69,7 @@ fn generate(ctx: &OpCtx) -> Result<Outputs> {
             )));
         }
         let (cam, gen) = view(ctx)?;
-        let (r, s) =
-            crate::gpu::rays::f_ray(crate::gpu::GpuContext::get()?, &cam, &gen, &ctx.budget)?;
+        let (r, s) = gpu::rays::f_ray(gpu::GpuContext::get()?, &cam, &gen, &ctx.budget)?;
         out.metric("time_s", s)
             .metric("mrays_per_s", r.len() as f64 / s / 1e6);
         r.to_outputs(&gen.shape(), &mut out)?;
@@ -139,13 +140,14 @@ fn rng_table(ctx: &OpCtx) -> Result<Outputs> {
         .collect::<Result<_>>()?;
     let shape = axes.iter().map(Vec::len).collect::<Vec<_>>();
     let keys = table_keys([&axes[0], &axes[1], &axes[2], &axes[3]]);
+    let smp: Sampler = ctx.param_or("sampler", Sampler::Independent)?;
     let (words, floats) = match ctx.backend {
-        BackendKind::Gpu => crate::gpu::math::rng_table(crate::gpu::GpuContext::get()?, &keys)?,
-        BackendKind::Cpu => rand_table(&keys),
+        BackendKind::Gpu => gpu::math::rng_table(gpu::GpuContext::get()?, &keys, smp.gpu_code())?,
+        BackendKind::Cpu => smp.table(&keys),
     };
     let mut out = Outputs::default();
-    out.tensor("words", Tensor::from_shape_vec(&shape, words)?);
-    out.tensor("floats", Tensor::from_shape_vec(&shape, floats)?);
+    out.tensor("words", Tensor::from_shape_vec(&shape, words)?)
+        .tensor("floats", Tensor::from_shape_vec(&shape, floats)?);
     Ok(out)
 }
 
@@ -161,10 +163,7 @@ fn expm1_table(ctx: &OpCtx) -> Result<Outputs> {
     let y = match (ctx.backend, ctx.precision) {
         (BackendKind::Gpu, _) => Tensor::real(
             &n,
-            crate::gpu::math::expm1_table(
-                crate::gpu::GpuContext::get()?,
-                &x32.collect::<Vec<_>>(),
-            )?,
+            gpu::math::expm1_table(gpu::GpuContext::get()?, &x32.collect::<Vec<_>>())?,
         ),
         (BackendKind::Cpu, Precision::F32) => Tensor::real(&n, x32.map(f32::exp_m1).collect()),
         (BackendKind::Cpu, Precision::F64) => {
