@@ -14,7 +14,9 @@ use super::super::integrate::Integrated;
 use super::super::sample::{walk_lattice, Samples};
 use super::field_grad::{param_count, param_index};
 use super::lanes::{self, LaneGrad, Scratch};
-use super::reduce::{push_rec, reduce_sorted, scatter_dense, sum_chunks, Dense, Unit, UNIT_RAYS};
+use super::reduce::{
+    push_rec, reduce_sorted, scatter_dense, split_packed, sum_chunks, Dense, Unit, UNIT_RAYS,
+};
 use super::walk::{ray_grads, replay_fused, replay_fused_lanes, replay_unfused, Ctx};
 use super::{DiffOptions, Grads, Ksum, Rec, Reduce};
 
@@ -167,13 +169,11 @@ pub(super) fn backward<F: Real>(
                 let cams = lanes::group(cx, lg, &query, first, len, &mut sc);
                 for (l, cam) in cams.into_iter().take(len).enumerate() {
                     u.samples += sc.samples(l) as u64;
-                    sc.cells(l, !sorted, lg.ds(), |c, v| {
-                        if sorted {
-                            push_rec(p, Some(c), v, &mut u.pk_recs);
-                        } else {
-                            scatter_dense(p, Some(c), v, &mut u.pk_dense);
-                        }
-                    });
+                    if sorted {
+                        sc.cells(l, lg.ds(), |c, v| push_rec(p, Some(c), v, &mut u.pk_recs));
+                    } else {
+                        sc.scatter(l, p, &mut u.pk_dense);
+                    }
                     u.cam.push(cam);
                 }
             }
@@ -288,8 +288,7 @@ pub(super) fn backward<F: Real>(
                 let parts: Vec<&Dense<F>> = out_units.iter().map(|u| &u.pk_dense).collect();
                 sum_chunks(&parts, p.data.len())
             };
-            let sig = pk.chunks(4).map(|v| v[0]).collect();
-            let col = pk.chunks(4).flat_map(|v| [v[1], v[2], v[3]]).collect();
+            let (sig, col) = split_packed(&pk);
             (Some(sig), Some(col))
         }
         (None, true) => (
