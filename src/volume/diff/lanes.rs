@@ -91,35 +91,14 @@ impl Scratch {
     /// per x-row) where the cell is inside the grid, in f32 (same weights,
     /// same `slot += w v` per element: the same bits).
     pub(super) fn scatter<F: Real>(&self, l: usize, p: &Grid<F>, out: &mut Dense<F>) {
-        let rows = [0, p.nx, p.nx * p.ny, p.nx * p.ny + p.nx].map(|o| 4 * o);
-        for k in (0..self.n[l]).rev() {
-            let e = &self.emit[k];
-            if e.some & (1 << l) == 0 {
-                continue;
-            }
-            let base = [0, 1, 2].map(|a| e.base[a][l] as i64);
-            let f = [0, 1, 2].map(|a| e.f[a][l]);
-            let v = [0, 1, 2, 3].map(|c| e.v[c][l]);
-            #[cfg(target_arch = "x86_64")]
-            if cell_inside(p, base) {
-                out.touch_cell(p, base);
-                let b = (base[2] as usize * p.ny + base[1] as usize) * p.nx + base[0] as usize;
-                if let Some(d) = F::as_f32_slice_mut(&mut out.data) {
-                    let w = std::array::from_fn(|c| corner_weight(f, c));
-                    // SAFETY: a `LaneGrad` exists, so AVX2 was detected; the
-                    // cell is inside, so its four rows of eight floats are in
-                    // `d` (`p`'s shape, four channels).
-                    unsafe { avx2::scatter4(d, 4 * b, rows, w, v) };
-                    continue;
-                }
-            }
-            let c = Cell {
-                base,
-                f: f.map(|x| F::of(x as f64)),
-                ds: p.scale,
-            };
-            scatter_dense(p, Some(c), v.map(|x| F::of(x as f64)), out);
+        #[cfg(target_arch = "x86_64")]
+        // SAFETY: a `Scratch` is filled only by `group`, behind a
+        // `LaneGrad`, which exists only where AVX2 was detected.
+        unsafe {
+            avx2::scatter(self, l, p, out)
         }
+        #[cfg(not(target_arch = "x86_64"))]
+        unreachable!("LaneMarch::new returns None off x86-64: no lane scratch to scatter")
     }
 }
 
@@ -216,7 +195,9 @@ type Border<'a> = dyn Fn([f32; 3], [f32; 4]) -> Option<([i32; 3], [f32; 3], [f32
 mod avx2 {
     use std::arch::x86_64::*;
 
-    use super::{Border, Emit8, Scratch, LANES};
+    use super::{cell_inside, corner_weight, scatter_dense, Border, Cell, Dense, Emit8, Scratch, LANES};
+    use crate::real::Real;
+    use crate::volume::field::Grid;
     use crate::volume::diff::walk::CamSums;
     use crate::volume::fused_lanes::avx2::kahan;
     use crate::volume::fused_lanes::{LaneMarch, LaneRay};
@@ -269,26 +250,42 @@ mod avx2 {
         })
     }
 
-    /// `slot += w_d v` for the eight corners of one inside cell: corners
-    /// `2 r`, `2 r + 1` are the eight floats at `d[b + rows[r]..]` (four
-    /// channels each). `b + rows[3] + 8` must not pass `d.len()`.
-    #[inline]
+    /// [`Scratch::scatter`](super::Scratch::scatter).
     #[target_feature(enable = "avx2")]
-    pub(super) unsafe fn scatter4(
-        d: &mut [f32],
-        b: usize,
-        rows: [usize; 4],
-        w: [f32; 8],
-        v: [f32; 4],
-    ) {
-        debug_assert!(b + rows[3] + 8 <= d.len());
-        let vv = _mm256_setr_ps(v[0], v[1], v[2], v[3], v[0], v[1], v[2], v[3]);
-        let p = d.as_mut_ptr().add(b);
-        for (r, off) in rows.into_iter().enumerate() {
-            let (w0, w1) = (w[2 * r], w[2 * r + 1]);
-            let wv = _mm256_setr_ps(w0, w0, w0, w0, w1, w1, w1, w1);
-            let q = p.add(off);
-            _mm256_storeu_ps(q, _mm256_add_ps(_mm256_loadu_ps(q), _mm256_mul_ps(wv, vv)));
+    pub(super) unsafe fn scatter<F: Real>(sc: &Scratch, l: usize, p: &Grid<F>, out: &mut Dense<F>) {
+        // Corners `2 r`, `2 r + 1` are the eight floats at `rows[r]` from
+        // the base corner (four channels each).
+        let rows = [0, p.nx, p.nx * p.ny, p.nx * p.ny + p.nx].map(|o| 4 * o);
+        for e in sc.emit[..sc.n[l]].iter().rev() {
+            if e.some & (1 << l) == 0 {
+                continue;
+            }
+            let base = [0, 1, 2].map(|a| e.base[a][l] as i64);
+            let f = [0, 1, 2].map(|a| e.f[a][l]);
+            let v = [0, 1, 2, 3].map(|c| e.v[c][l]);
+            if cell_inside(p, base) {
+                out.touch_cell(p, base);
+                let b = 4 * ((base[2] as usize * p.ny + base[1] as usize) * p.nx + base[0] as usize);
+                if let Some(d) = F::as_f32_slice_mut(&mut out.data) {
+                    // Inside: the four rows of eight floats are in `d`.
+                    assert!(b + rows[3] + 8 <= d.len());
+                    let vv = _mm256_setr_ps(v[0], v[1], v[2], v[3], v[0], v[1], v[2], v[3]);
+                    for (r, off) in rows.into_iter().enumerate() {
+                        let (w0, w1) = (corner_weight(f, 2 * r), corner_weight(f, 2 * r + 1));
+                        let wv = _mm256_setr_ps(w0, w0, w0, w0, w1, w1, w1, w1);
+                        let q = d.as_mut_ptr().add(b + off);
+                        let sum = _mm256_add_ps(_mm256_loadu_ps(q), _mm256_mul_ps(wv, vv));
+                        _mm256_storeu_ps(q, sum);
+                    }
+                    continue;
+                }
+            }
+            let c = Cell {
+                base,
+                f: f.map(|x| F::of(x as f64)),
+                ds: p.scale,
+            };
+            scatter_dense(p, Some(c), v.map(|x| F::of(x as f64)), out);
         }
     }
 

@@ -100,9 +100,14 @@ pub(super) fn backward<F: Real>(
                 ));
             }
             let k = chunks as u64;
-            let dense = sig_grid.map_or(0, |g| g.data.len() as u64)
-                + col_grid.map_or(0, |g| g.data.len() as u64)
-                + hash.map_or(0, |h| h.param_count() as u64);
+            let grids = match packed {
+                Some(p) => p.data.len() as u64,
+                None => {
+                    sig_grid.map_or(0, |g| g.data.len() as u64)
+                        + col_grid.map_or(0, |g| g.data.len() as u64)
+                }
+            };
+            let dense = grids + hash.map_or(0, |h| h.param_count() as u64);
             budget.check(
                 "f_diff chunk grids",
                 bytes_for(dense, fsz).and_then(|b| b.checked_mul(k + 1)),
