@@ -71,7 +71,12 @@ impl Scratch {
 
     /// Lane `l`'s samples that have a cell, as `(cell, [dsigma, dcolor])`,
     /// front to back (the sorted reduction's record order).
-    pub(super) fn cells<F: Real>(&self, l: usize, ds: [F; 3], mut each: impl FnMut(Cell<F>, [F; 4])) {
+    pub(super) fn cells<F: Real>(
+        &self,
+        l: usize,
+        ds: [F; 3],
+        mut each: impl FnMut(Cell<F>, [F; 4]),
+    ) {
         for e in &self.emit[..self.n[l]] {
             if e.some & (1 << l) != 0 {
                 let f = |v: f32| F::of(v as f64);
@@ -195,10 +200,12 @@ type Border<'a> = dyn Fn([f32; 3], [f32; 4]) -> Option<([i32; 3], [f32; 3], [f32
 mod avx2 {
     use std::arch::x86_64::*;
 
-    use super::{cell_inside, corner_weight, scatter_dense, Border, Cell, Dense, Emit8, Scratch, LANES};
+    use super::{
+        cell_inside, corner_weight, scatter_dense, Border, Cell, Dense, Emit8, Scratch, LANES,
+    };
     use crate::real::Real;
-    use crate::volume::field::Grid;
     use crate::volume::diff::walk::CamSums;
+    use crate::volume::field::Grid;
     use crate::volume::fused_lanes::avx2::kahan;
     use crate::volume::fused_lanes::{LaneMarch, LaneRay};
 
@@ -265,7 +272,8 @@ mod avx2 {
             let v = [0, 1, 2, 3].map(|c| e.v[c][l]);
             if cell_inside(p, base) {
                 out.touch_cell(p, base);
-                let b = 4 * ((base[2] as usize * p.ny + base[1] as usize) * p.nx + base[0] as usize);
+                let b =
+                    4 * ((base[2] as usize * p.ny + base[1] as usize) * p.nx + base[0] as usize);
                 if let Some(d) = F::as_f32_slice_mut(&mut out.data) {
                     // Inside: the four rows of eight floats are in `d`.
                     assert!(b + rows[3] + 8 <= d.len());

@@ -228,7 +228,10 @@ pub(super) fn split_packed<F: Real>(pk: &[F]) -> (Vec<F>, Vec<F>) {
         }
     });
     crate::parallel::par_chunks("f_diff_split_color", &mut col, 3 * NODES, |ci, out| {
-        for (o, v) in out.chunks_exact_mut(3).zip(pk[4 * ci * NODES..].chunks_exact(4)) {
+        for (o, v) in out
+            .chunks_exact_mut(3)
+            .zip(pk[4 * ci * NODES..].chunks_exact(4))
+        {
             o.copy_from_slice(&v[1..]);
         }
     });
