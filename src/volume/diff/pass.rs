@@ -15,7 +15,8 @@ use super::super::sample::{walk_lattice, Samples};
 use super::field_grad::{param_count, param_index};
 use super::lanes::{self, LaneGrad, Scratch};
 use super::reduce::{
-    push_rec, reduce_sorted, scatter_dense, split_packed, sum_chunks, Dense, Unit, UNIT_RAYS,
+    push_rec, reduce_sorted, scatter_dense, split_packed, sum_chunks, sum_chunks_split, Dense,
+    Unit, UNIT_RAYS,
 };
 use super::walk::{ray_grads, replay_fused, replay_fused_lanes, replay_unfused, Ctx};
 use super::{DiffOptions, Grads, Ksum, Rec, Reduce};
@@ -286,14 +287,13 @@ pub(super) fn backward<F: Real>(
     let mut out_units = out_units;
     let (dsigma, dcolor) = match (packed, sorted) {
         (Some(p), _) => {
-            let pk = if sorted {
+            let (sig, col) = if sorted {
                 let parts = out_units.iter_mut().map(|u| std::mem::take(&mut u.pk_recs));
-                reduce_sorted(p, parts.collect())
+                split_packed(&reduce_sorted(p, parts.collect()))
             } else {
                 let parts: Vec<&Dense<F>> = out_units.iter().map(|u| &u.pk_dense).collect();
-                sum_chunks(&parts, p.data.len())
+                sum_chunks_split(&parts, p.data.len() / 4)
             };
-            let (sig, col) = split_packed(&pk);
             (Some(sig), Some(col))
         }
         (None, true) => (

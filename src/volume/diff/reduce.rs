@@ -192,27 +192,56 @@ pub(super) fn reduce_sorted<F: Real, const C: usize>(
 pub(super) fn sum_chunks<F: Real>(parts: &[&Dense<F>], len: usize) -> Vec<F> {
     let mut out = vec![F::zero(); len];
     crate::parallel::par_chunks("f_diff_chunk_sum", &mut out, 1 << 14, |ci, chunk| {
-        let (first, end) = (ci << 14, (ci << 14) + chunk.len());
-        // A write first: one page fault per page, no copy-on-write (`Dense::touch`).
-        chunk.fill(F::zero());
-        for p in parts {
-            let mut e = first;
-            while e < end {
-                let r = e / p.row;
-                let stop = ((r + 1) * p.row).min(end);
-                if p.rows[r] {
-                    for (o, v) in chunk[e - first..stop - first]
-                        .iter_mut()
-                        .zip(&p.data[e..stop])
-                    {
-                        *o += *v;
-                    }
-                }
-                e = stop;
-            }
-        }
+        sum_range(parts, ci << 14, chunk)
     });
     out
+}
+
+/// `out[i] = sum of the parts' elements first + i` in part order, skipping
+/// untouched rows.
+fn sum_range<F: Real>(parts: &[&Dense<F>], first: usize, out: &mut [F]) {
+    let end = first + out.len();
+    // A write first: one page fault per page, no copy-on-write (`Dense::touch`).
+    out.fill(F::zero());
+    for p in parts {
+        let mut e = first;
+        while e < end {
+            let r = e / p.row;
+            let stop = ((r + 1) * p.row).min(end);
+            if p.rows[r] {
+                for (o, v) in out[e - first..stop - first]
+                    .iter_mut()
+                    .zip(&p.data[e..stop])
+                {
+                    *o += *v;
+                }
+            }
+            e = stop;
+        }
+    }
+}
+
+/// [`sum_chunks`] of packed `[sigma, r, g, b]` grids of `nodes` nodes,
+/// split as it goes into `dsigma` (one per node) and `dcolor` (three per
+/// node): the same sums, without a packed total.
+pub(super) fn sum_chunks_split<F: Real>(parts: &[&Dense<F>], nodes: usize) -> (Vec<F>, Vec<F>) {
+    const NODES: usize = 1 << 12;
+    let mut sig = vec![F::zero(); nodes];
+    let mut col = vec![F::zero(); 3 * nodes];
+    let (a, b) = ((&mut sig[..], NODES), (&mut col[..], 3 * NODES));
+    crate::parallel::par_chunks2("f_diff_chunk_sum", a, b, |ci, s, c| {
+        let mut pk = vec![F::zero(); 4 * s.len()];
+        sum_range(parts, 4 * ci * NODES, &mut pk);
+        for ((s, c), v) in s
+            .iter_mut()
+            .zip(c.chunks_exact_mut(3))
+            .zip(pk.chunks_exact(4))
+        {
+            *s = v[0];
+            c.copy_from_slice(&v[1..]);
+        }
+    });
+    (sig, col)
 }
 
 /// The packed `[sigma, r, g, b]` node gradients split into `dsigma` (one
@@ -222,19 +251,21 @@ pub(super) fn split_packed<F: Real>(pk: &[F]) -> (Vec<F>, Vec<F>) {
     let n = pk.len() / 4;
     let mut sig = vec![F::zero(); n];
     let mut col = vec![F::zero(); 3 * n];
-    crate::parallel::par_chunks("f_diff_split_sigma", &mut sig, NODES, |ci, out| {
-        for (o, v) in out.iter_mut().zip(pk[4 * ci * NODES..].chunks_exact(4)) {
-            *o = v[0];
-        }
-    });
-    crate::parallel::par_chunks("f_diff_split_color", &mut col, 3 * NODES, |ci, out| {
-        for (o, v) in out
-            .chunks_exact_mut(3)
-            .zip(pk[4 * ci * NODES..].chunks_exact(4))
-        {
-            o.copy_from_slice(&v[1..]);
-        }
-    });
+    crate::parallel::par_chunks2(
+        "f_diff_split",
+        (&mut sig[..], NODES),
+        (&mut col[..], 3 * NODES),
+        |ci, s, c| {
+            for ((s, c), v) in s
+                .iter_mut()
+                .zip(c.chunks_exact_mut(3))
+                .zip(pk[4 * ci * NODES..].chunks_exact(4))
+            {
+                *s = v[0];
+                c.copy_from_slice(&v[1..]);
+            }
+        },
+    );
     (sig, col)
 }
 
