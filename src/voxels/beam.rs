@@ -26,7 +26,8 @@ use crate::parallel::par_collect;
 use crate::real::Real;
 
 use super::cast::{cast_with, Addressing, CastHit, CastParams, CastReal};
-use super::render::{collect, VoxelHits};
+use super::hits::collect;
+use super::render::VoxelHits;
 
 /// Rays per beam.
 pub const RUN: usize = 16;

@@ -21,62 +21,116 @@
 //! leaf, normal, level, attr and iterations are bit-identical to the
 //! per-ray cast, which stays the referee (unit tests below, cases
 //! `voxel_lanes_*_identical` in `TESTS/voxels/manifest_packet.yaml`).
-//! AVX2 is detected at run time; without it, or when the node array is too
+//! AVX2 is detected at run time ([`LaneIsa`]), and the same loop is also
+//! compiled with AVX-512F/VL (32 vector registers, mask blends; still eight
+//! lanes) where the CPU has it; without AVX2, or when the node array is too
 //! large for 32-bit gather indices, the SSE per-ray cast runs. No contours
 //! (the per-ray cast does them).
 
-use crate::parallel::par_chunks;
-
 use super::cast::{Addressing, CastHit, CastParams};
 use super::cast_sse::cast_sse;
+use super::hits::{cast_chunks, GRAIN};
+use super::render::VoxelHits;
 
 /// Lanes: one ray each.
 pub const W: usize = 8;
 
-/// Rays per parallel chunk (one set of lanes streams through a chunk).
-const CHUNK: usize = 2048;
+/// What the lane loop is compiled for, picked at run time.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord)]
+pub enum LaneIsa {
+    /// No lane loop: the SSE per-ray cast (no AVX2, or a node array too
+    /// large for 32-bit gather indices).
+    Sse,
+    /// The AVX2 lane loop.
+    Avx2,
+    /// The same loop with AVX-512F/VL enabled: still eight lanes and the
+    /// same IEEE operations, but 32 vector registers (the lane state
+    /// spills less) and mask-register blends.
+    Avx512,
+}
 
-/// Whether the AVX2 lane loop runs for a node array of `len` words (else
-/// [`cast_all_lanes`] falls back to the SSE per-ray cast).
-pub fn lanes_run(len: usize) -> bool {
-    #[cfg(target_arch = "x86_64")]
-    {
-        std::arch::is_x86_feature_detected!("avx2") && len < (1 << 30)
-    }
-    #[cfg(not(target_arch = "x86_64"))]
-    {
+impl LaneIsa {
+    /// The widest set this CPU runs for a node array of `len` words.
+    pub fn detect(len: usize) -> LaneIsa {
+        #[cfg(target_arch = "x86_64")]
+        {
+            use std::arch::is_x86_feature_detected as has;
+            if has!("avx2") && len < (1 << 30) {
+                let avx512 = has!("avx512f") && has!("avx512vl");
+                return if avx512 {
+                    LaneIsa::Avx512
+                } else {
+                    LaneIsa::Avx2
+                };
+            }
+        }
         let _ = len;
-        false
+        LaneIsa::Sse
+    }
+
+    /// Every set this CPU runs for `len` words, narrowest first (the
+    /// referee tests cast through each).
+    pub fn available(len: usize) -> Vec<LaneIsa> {
+        let all = [LaneIsa::Sse, LaneIsa::Avx2, LaneIsa::Avx512];
+        let top = LaneIsa::detect(len);
+        all.into_iter().filter(|&i| i <= top).collect()
     }
 }
 
-/// Every ray `(o[i], d[i])` cast through `nodes` (addressing `A`): the same
-/// results as [`super::cast::cast_with`]`::<f32, A>(.., None)` per ray.
-pub fn cast_all_lanes<A: Addressing>(
+/// Every ray `(o[i], d[i])` cast through `nodes` (addressing `A`) into
+/// `out[i]`, on the widest [`LaneIsa`] this CPU has: the same results as
+/// [`super::cast::cast_with`]`::<f32, A>(.., None)` per ray. Sequential
+/// (the caller fans chunks out).
+pub fn cast_lanes<A: Addressing>(
     nodes: &[u32],
     depth: u32,
     o: &[[f32; 3]],
     d: &[[f32; 3]],
     p: &CastParams,
-) -> Vec<CastHit<f32>> {
-    let mut out = vec![CastHit::miss(0, false); o.len()];
-    let lanes = lanes_run(nodes.len());
-    par_chunks("voxels.cast_lanes", &mut out, CHUNK, |c, chunk| {
-        let r = c * CHUNK..c * CHUNK + chunk.len();
-        let (o, d) = (&o[r.clone()], &d[r]);
-        #[cfg(target_arch = "x86_64")]
-        if lanes {
-            // SAFETY: the CPU has AVX2 and every node slot fits an i32
-            // gather index (checked by `lanes_run`).
-            unsafe { avx2::stream::<A>(nodes, depth, o, d, p, chunk) };
-            return;
-        }
-        let _ = lanes;
-        for (i, h) in chunk.iter_mut().enumerate() {
-            *h = cast_sse::<A>(nodes, depth, o[i], d[i], p);
-        }
-    });
-    out
+    out: &mut [CastHit<f32>],
+) {
+    cast_lanes_on::<A>(LaneIsa::detect(nodes.len()), nodes, depth, o, d, p, out)
+}
+
+/// Every ray cast by [`cast_lanes_on`] on `isa`, in parallel chunks (the
+/// perf op compares the instruction sets in one run).
+pub fn cast_all_lanes_on<A: Addressing>(
+    isa: LaneIsa,
+    nodes: &[u32],
+    depth: u32,
+    o: &[[f32; 3]],
+    d: &[[f32; 3]],
+    p: &CastParams,
+) -> VoxelHits<f32> {
+    cast_chunks("voxels.cast_lanes", o.len(), GRAIN, |r, out| {
+        cast_lanes_on::<A>(isa, nodes, depth, &o[r.clone()], &d[r], p, out)
+    })
+}
+
+/// [`cast_lanes`] on `isa`, which must be one of
+/// [`LaneIsa::available`]`(nodes.len())` (else the SSE cast runs).
+pub fn cast_lanes_on<A: Addressing>(
+    isa: LaneIsa,
+    nodes: &[u32],
+    depth: u32,
+    o: &[[f32; 3]],
+    d: &[[f32; 3]],
+    p: &CastParams,
+    out: &mut [CastHit<f32>],
+) {
+    let isa = isa.min(LaneIsa::detect(nodes.len()));
+    // SAFETY: `isa` is within what this CPU has, and every node slot fits
+    // an i32 gather index (both checked by `LaneIsa::detect`).
+    #[cfg(target_arch = "x86_64")]
+    match isa {
+        LaneIsa::Avx512 => return unsafe { avx2::stream_avx512::<A>(nodes, depth, o, d, p, out) },
+        LaneIsa::Avx2 => return unsafe { avx2::stream_avx2::<A>(nodes, depth, o, d, p, out) },
+        LaneIsa::Sse => {}
+    }
+    let _ = isa;
+    for (i, h) in out.iter_mut().enumerate() {
+        *h = cast_sse::<A>(nodes, depth, o[i], d[i], p);
+    }
 }
 
 #[cfg(target_arch = "x86_64")]
@@ -85,6 +139,12 @@ mod avx2 {
 
     use super::W;
     use crate::voxels::cast::{finish, start, Addressing, CastHit, CastParams, Start, Stop, S_MAX};
+
+    /// Lane groups per stream. Measured in one run (shared machine, 30
+    /// interleaved rounds, sphere d10 and Menger d10, octree and DAG,
+    /// 2^18 rays, docs/PERF.md): one group 0.91-0.97x of two, four
+    /// 0.96-1.02x of two.
+    const G: usize = 2;
 
     /// Stack entries per lane (scales 0..=S_MAX).
     const SD: usize = S_MAX as usize + 1;
@@ -176,23 +236,20 @@ mod avx2 {
     }
 
     /// The lane mask of `m` as bits.
-    #[inline]
-    #[target_feature(enable = "avx2")]
+    #[inline(always)]
     unsafe fn mask_i(m: __m256i) -> u32 {
         _mm256_movemask_ps(_mm256_castsi256_ps(m)) as u32
     }
 
     /// All ones on lanes where `v & m == 0`.
-    #[inline]
-    #[target_feature(enable = "avx2")]
+    #[inline(always)]
     unsafe fn clear(v: __m256i, m: i32) -> __m256i {
         let z = _mm256_setzero_si256();
         _mm256_cmpeq_epi32(_mm256_and_si256(v, _mm256_set1_epi32(m)), z)
     }
 
     /// All ones on lanes where `a <= b` (ordered, as the scalar `<=`).
-    #[inline]
-    #[target_feature(enable = "avx2")]
+    #[inline(always)]
     unsafe fn le(a: __m256, b: __m256) -> __m256i {
         _mm256_castps_si256(_mm256_cmp_ps::<_CMP_LE_OQ>(a, b))
     }
@@ -232,8 +289,7 @@ mod avx2 {
     }
 
     /// POP's new `idx`: bit `a` is bit `scale` of axis `a`'s position.
-    #[inline]
-    #[target_feature(enable = "avx2")]
+    #[inline(always)]
     unsafe fn pop_idx(pos: &[__m256; 3], scale: __m256i) -> __m256i {
         let mut idx = _mm256_setzero_si256();
         for (a, p) in pos.iter().enumerate() {
@@ -247,8 +303,7 @@ mod avx2 {
     /// The octree's child slot on lanes (`Relative::child`): `parent + ofs`
     /// (through the far-pointer slot where the far bit is set) plus the
     /// non-leaf children before `c` (`cm & 0x7F`, counted by nibbles).
-    #[inline]
-    #[target_feature(enable = "avx2")]
+    #[inline(always)]
     unsafe fn child_relative(base: *const i32, s: &State, cm: __m256i, push: __m256i) -> __m256i {
         let mut ofs = _mm256_srli_epi32::<17>(s.desc);
         let far = _mm256_andnot_si256(clear(s.desc, 0x1_0000), push);
@@ -289,15 +344,49 @@ mod avx2 {
         q: Queue<'r>,
     }
 
-    /// Streams the rays `(o[i], d[i])` through two groups of lanes (the
-    /// first half of the rays through one, the second through the other),
-    /// one iteration of each in turn, writing `out[i]`: the groups' loads
-    /// are independent, so one group's gathers overlap the other's work.
+    /// [`stream`] compiled for AVX2.
     ///
     /// # Safety
     /// The CPU must have AVX2 and `2 * nodes.len()` must fit an i32.
     #[target_feature(enable = "avx2")]
-    pub unsafe fn stream<A: Addressing>(
+    pub unsafe fn stream_avx2<A: Addressing>(
+        nodes: &[u32],
+        depth: u32,
+        o: &[[f32; 3]],
+        d: &[[f32; 3]],
+        p: &CastParams,
+        out: &mut [CastHit<f32>],
+    ) {
+        stream::<A>(nodes, depth, o, d, p, out)
+    }
+
+    /// [`stream`] compiled with AVX-512F/VL as well (32 vector registers,
+    /// mask blends; the same eight lanes and IEEE operations).
+    ///
+    /// # Safety
+    /// The CPU must have AVX2 and AVX-512F/VL, and `2 * nodes.len()` must
+    /// fit an i32.
+    #[target_feature(enable = "avx2,avx512f,avx512vl")]
+    pub unsafe fn stream_avx512<A: Addressing>(
+        nodes: &[u32],
+        depth: u32,
+        o: &[[f32; 3]],
+        d: &[[f32; 3]],
+        p: &CastParams,
+        out: &mut [CastHit<f32>],
+    ) {
+        stream::<A>(nodes, depth, o, d, p, out)
+    }
+
+    /// Streams the rays `(o[i], d[i])` through [`G`] groups of lanes (the
+    /// rays split into `G` consecutive runs, one per group), one iteration
+    /// of each live group in turn, writing `out[i]`: the groups' loads are
+    /// independent, so one group's gathers overlap the others' work.
+    ///
+    /// # Safety
+    /// The CPU must have AVX2 and `2 * nodes.len()` must fit an i32.
+    #[inline(always)]
+    unsafe fn stream<A: Addressing>(
         nodes: &[u32],
         depth: u32,
         o: &[[f32; 3]],
@@ -321,32 +410,29 @@ mod avx2 {
                 _mm256_set1_epi32(SD as i32),
             ),
         };
-        let mid = o.len() / 2;
-        let mut g = [group(o, d, 0, mid), group(o, d, mid, o.len())];
+        let n = o.len();
+        let mut g: [Group; G] = std::array::from_fn(|j| group(o, d, j * n / G, (j + 1) * n / G));
         for g in g.iter_mut() {
             for l in 0..W {
                 g.q.refill(&mut g.s, l, p, out);
             }
         }
-        let [a, b] = &mut g;
         loop {
-            let live_a = mask_i(a.s.act) != 0;
-            let live_b = mask_i(b.s.act) != 0;
-            if live_a {
-                step::<A>(a, &k, out);
+            let mut live = false;
+            for g in g.iter_mut() {
+                if mask_i(g.s.act) != 0 {
+                    live = true;
+                    step::<A>(g, &k, out);
+                }
             }
-            if live_b {
-                step::<A>(b, &k, out);
-            }
-            if !live_a && !live_b {
+            if !live {
                 return;
             }
         }
     }
 
     /// A group with idle lanes over rays `start..end`.
-    #[inline]
-    #[target_feature(enable = "avx2")]
+    #[inline(always)]
     unsafe fn group<'r>(
         o: &'r [[f32; 3]],
         d: &'r [[f32; 3]],
@@ -387,8 +473,7 @@ mod avx2 {
 
     /// One loop iteration of every live lane of `g` (PUSH, ADVANCE, POP by
     /// masks), then the answers of the lanes whose ray ended and their refill.
-    #[inline]
-    #[target_feature(enable = "avx2")]
+    #[inline(always)]
     #[allow(clippy::needless_range_loop)] // per-axis loops over lane vectors, as the scalar cast
     unsafe fn step<A: Addressing>(g: &mut Group, k: &Consts, out: &mut [CastHit<f32>]) {
         let (nodes, depth, p) = (k.nodes, k.depth, k.p);
@@ -550,71 +635,31 @@ mod avx2 {
 mod tests {
     use super::*;
     use crate::budget::MemBudget;
-    use crate::rng::rand_f64;
-    use crate::voxels::cast::{cast_with, default_max_iter, Absolute, Lod, Relative};
+    use crate::voxels::cast::{cast_with, default_max_iter, Absolute, Relative};
     use crate::voxels::dag::build_dag;
+    use crate::voxels::fixtures::{hard_rays, lod, scenes};
     use crate::voxels::octree::build;
     use crate::voxels::shape::{Shape, VoxelBox};
 
-    /// Rays from outside and inside the box, some axis-parallel or
-    /// diagonal (ties), some grazing, some from one point (coherent).
-    fn rays(n: u32) -> (Vec<[f32; 3]>, Vec<[f32; 3]>) {
-        (0..n)
-            .map(|i| {
-                let u = |k: u32| rand_f64(9, i, 0, k);
-                let mut o = [0, 1, 2].map(|k| (-2.5 + 5.0 * u(k)) as f32);
-                let mut d = [0, 1, 2].map(|k| (-1.0 + 2.0 * u(3 + k)) as f32);
-                match i % 6 {
-                    0 => d = [0.0, 0.0, -1.0],
-                    1 => d = [1.0, 1.0, 1.0],
-                    2 => d[0] = 0.0,
-                    3 => {
-                        o = [0.3, 0.4, 2.5];
-                        d[2] = -2.0;
-                    }
-                    _ => {}
-                }
-                let n = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt().max(1e-6);
-                (o, d.map(|x| x / n))
-            })
-            .unzip()
-    }
-
+    /// The lane cast on every [`LaneIsa`] this CPU has against the per-ray
+    /// cast, every field of every ray.
     fn same<A: Addressing>(nodes: &[u32], depth: u32, p: &CastParams, what: &str) {
-        let (o, d) = rays(6000);
-        let lanes = cast_all_lanes::<A>(nodes, depth, &o, &d, p);
-        for i in 0..o.len() {
-            let a = cast_with::<f32, A>(nodes, depth, o[i], d[i], p, None);
-            let b = lanes[i];
-            assert_eq!(format!("{a:?}"), format!("{b:?}"), "{what} ray {i}");
+        let (o, d) = hard_rays(6000, 9);
+        for isa in LaneIsa::available(nodes.len()) {
+            let mut lanes = vec![CastHit::miss(0, false); o.len()];
+            cast_lanes_on::<A>(isa, nodes, depth, &o, &d, p, &mut lanes);
+            for i in 0..o.len() {
+                let a = cast_with::<f32, A>(nodes, depth, o[i], d[i], p, None);
+                let b = lanes[i];
+                assert_eq!(format!("{a:?}"), format!("{b:?}"), "{what} {isa:?} ray {i}");
+            }
         }
     }
 
     #[test]
     fn lane_cast_is_bit_identical_to_the_per_ray_cast_on_octree_and_dag() {
-        assert!(lanes_run(1 << 20) || !std::arch::is_x86_feature_detected!("avx2"));
-        let boxes = vec![
-            VoxelBox {
-                min: [9, 3, 0],
-                max: [9, 3, 63],
-            },
-            VoxelBox {
-                min: [1, 1, 1],
-                max: [40, 50, 2],
-            },
-        ];
-        let shapes = [
-            (Shape::Sphere { radius: 0.8 }, 7),
-            (Shape::Menger { level: 4 }, 7),
-            (Shape::Boxes { boxes }, 6),
-        ];
-        let lod = CastParams {
-            lod: Some(Lod {
-                orig_size: 0.0,
-                dir_size: 0.01,
-            }),
-            ..CastParams::default()
-        };
+        let avx2 = std::arch::is_x86_feature_detected!("avx2");
+        assert!(LaneIsa::detect(1 << 20) >= LaneIsa::Avx2 || !avx2);
         let interval = CastParams {
             near: 0.5,
             far: 2.5,
@@ -625,10 +670,10 @@ mod tests {
             max_iter: 9,
             ..CastParams::default()
         };
-        for (s, depth) in shapes {
+        for (s, depth) in scenes() {
             let t = build(&s, depth, &MemBudget::fixed(1 << 30)).unwrap();
             let g = build_dag(&t, &MemBudget::fixed(1 << 30)).unwrap();
-            for p in [CastParams::default(), lod, interval, capped] {
+            for p in [CastParams::default(), lod(0.01), interval, capped] {
                 same::<Relative>(&t.nodes, depth, &p, &format!("octree {s:?} {p:?}"));
                 same::<Absolute>(&g.nodes, depth, &p, &format!("dag {s:?} {p:?}"));
             }

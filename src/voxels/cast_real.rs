@@ -27,17 +27,20 @@ pub trait CastReal: Real {
     ) -> Option<CastHit<Self>> {
         None
     }
-    /// The lane cast ([`super::cast_lanes`]) of every ray: `Some` in f32
-    /// (bit-identical to [`super::cast::cast_with`] without contours), `None` in other
-    /// precisions.
-    fn cast_all_lanes<A: Addressing>(
+    /// Whether [`CastReal::cast_sse`] and [`CastReal::cast_lanes`] cast
+    /// (f32) or leave their outputs alone (other precisions).
+    const SIMD: bool = false;
+    /// The lane cast ([`super::cast_lanes`]) of rays `(o[i], d[i])` into
+    /// `out[i]` in f32 (bit-identical to [`super::cast::cast_with`] without
+    /// contours); nothing in other precisions.
+    fn cast_lanes<A: Addressing>(
         _nodes: &[u32],
         _depth: u32,
         _o: &[[Self; 3]],
         _d: &[[Self; 3]],
         _p: &CastParams,
-    ) -> Option<Vec<CastHit<Self>>> {
-        None
+        _out: &mut [CastHit<Self>],
+    ) {
     }
 }
 
@@ -66,16 +69,16 @@ impl CastReal for f32 {
     ) -> Option<CastHit<f32>> {
         Some(super::cast_sse::cast_sse::<A>(nodes, depth, o, d, p))
     }
-    fn cast_all_lanes<A: Addressing>(
+    const SIMD: bool = true;
+    fn cast_lanes<A: Addressing>(
         nodes: &[u32],
         depth: u32,
         o: &[[f32; 3]],
         d: &[[f32; 3]],
         p: &CastParams,
-    ) -> Option<Vec<CastHit<f32>>> {
-        Some(super::cast_lanes::cast_all_lanes::<A>(
-            nodes, depth, o, d, p,
-        ))
+        out: &mut [CastHit<f32>],
+    ) {
+        super::cast_lanes::cast_lanes::<A>(nodes, depth, o, d, p, out)
     }
 }
 

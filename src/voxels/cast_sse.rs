@@ -192,61 +192,19 @@ fn cast_sse2<A: Addressing>(
 mod tests {
     use super::*;
     use crate::budget::MemBudget;
-    use crate::rng::rand_f64;
-    use crate::voxels::cast::{cast_with, Absolute, Lod, Relative};
+    use crate::voxels::cast::{cast_with, Absolute, Relative};
     use crate::voxels::dag::build_dag;
+    use crate::voxels::fixtures::{hard_rays, lod, scenes};
     use crate::voxels::octree::build;
-    use crate::voxels::shape::{Shape, VoxelBox};
-
-    /// Rays from outside and inside the box, some axis-parallel or
-    /// diagonal (ties), some grazing.
-    fn rays(n: u32) -> Vec<([f32; 3], [f32; 3])> {
-        (0..n)
-            .map(|i| {
-                let u = |k: u32| rand_f64(7, i, 0, k);
-                let o = [0, 1, 2].map(|k| (-2.5 + 5.0 * u(k)) as f32);
-                let mut d = [0, 1, 2].map(|k| (-1.0 + 2.0 * u(3 + k)) as f32);
-                match i % 5 {
-                    0 => d = [0.0, 0.0, -1.0],
-                    1 => d = [1.0, 1.0, 1.0],
-                    2 => d[0] = 0.0,
-                    _ => {}
-                }
-                let n = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt().max(1e-6);
-                (o, d.map(|x| x / n))
-            })
-            .collect()
-    }
 
     #[test]
     fn sse_cast_is_bit_identical_to_the_scalar_cast_on_octree_and_dag() {
-        let boxes = vec![
-            VoxelBox {
-                min: [9, 3, 0],
-                max: [9, 3, 63],
-            },
-            VoxelBox {
-                min: [1, 1, 1],
-                max: [40, 50, 2],
-            },
-        ];
-        let shapes = [
-            (Shape::Sphere { radius: 0.8 }, 7),
-            (Shape::Menger { level: 4 }, 7),
-            (Shape::Boxes { boxes }, 6),
-        ];
-        let lod = CastParams {
-            lod: Some(Lod {
-                orig_size: 0.0,
-                dir_size: 0.01,
-            }),
-            ..CastParams::default()
-        };
-        for (s, depth) in shapes {
+        let (o, d) = hard_rays(4000, 7);
+        for (s, depth) in scenes() {
             let t = build(&s, depth, &MemBudget::fixed(1 << 30)).unwrap();
             let g = build_dag(&t, &MemBudget::fixed(1 << 30)).unwrap();
-            for p in [CastParams::default(), lod] {
-                for (o, d) in rays(4000) {
+            for p in [CastParams::default(), lod(0.01)] {
+                for (&o, &d) in o.iter().zip(&d) {
                     let a = cast_with::<f32, Relative>(&t.nodes, depth, o, d, &p, None);
                     let b = cast_sse::<Relative>(&t.nodes, depth, o, d, &p);
                     assert_eq!(format!("{a:?}"), format!("{b:?}"), "{s:?} {o:?} {d:?}");

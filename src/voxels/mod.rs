@@ -16,7 +16,10 @@ pub mod checks;
 pub mod contour;
 pub mod dag;
 pub mod dxt;
+#[cfg(test)]
+pub mod fixtures;
 pub mod gpu;
+pub mod hits;
 pub mod mesh;
 pub mod node_order;
 pub mod octree;
@@ -38,9 +41,10 @@ mod tests {
     use crate::rng::rand_f64;
 
     use super::cast::{cast, CastParams, CastReal};
+    use super::fixtures::two_boxes;
     use super::octree::build;
     use super::referee::referee;
-    use super::shape::{Shape, VoxelBox};
+    use super::shape::Shape;
 
     /// Random rays: origins in [-1.6, 1.6]^3, uniform directions.
     fn rays(n: u32, seed: u32) -> Vec<([f64; 3], [f64; 3])> {
@@ -86,21 +90,7 @@ mod tests {
             (Shape::Sphere { radius: 0.8 }, 6),
             (Shape::Menger { level: 3 }, 5),
             (Shape::Menger { level: 4 }, 7),
-            (
-                Shape::Boxes {
-                    boxes: vec![
-                        VoxelBox {
-                            min: [9, 3, 0],
-                            max: [9, 3, 63],
-                        },
-                        VoxelBox {
-                            min: [1, 1, 1],
-                            max: [40, 50, 2],
-                        },
-                    ],
-                },
-                6,
-            ),
+            (two_boxes(), 6),
         ]
     }
 

@@ -97,11 +97,11 @@ pub fn breadth_first(dag: &Dag) -> Dag {
 mod tests {
     use super::*;
     use crate::budget::MemBudget;
-    use crate::voxels::cast::{cast_dag, Absolute, CastParams};
-    use crate::voxels::cast_lanes::cast_all_lanes;
+    use crate::voxels::cast::{cast_dag, Absolute, CastHit, CastParams};
+    use crate::voxels::cast_lanes::cast_lanes;
     use crate::voxels::dag::build_dag;
+    use crate::voxels::fixtures::incoherent_in;
     use crate::voxels::octree::build;
-    use crate::voxels::raysets::incoherent;
     use crate::voxels::shape::Shape;
 
     #[test]
@@ -115,12 +115,10 @@ mod tests {
             let g = build_dag(&t, &budget).unwrap();
             let b = breadth_first(&g);
             assert_ne!(b.nodes, g.nodes, "{s:?}: the order changed");
-            let (o, d): (Vec<[f32; 3]>, Vec<[f32; 3]>) = incoherent(4000, depth)
-                .into_iter()
-                .map(|(o, d)| (o.map(|x| x as f32), d.map(|x| x as f32)))
-                .unzip();
+            let (o, d) = incoherent_in::<f32>(4000, depth);
             let p = CastParams::default();
-            let lanes = cast_all_lanes::<Absolute>(&b.nodes, depth, &o, &d, &p);
+            let mut lanes = vec![CastHit::miss(0, false); o.len()];
+            cast_lanes::<Absolute>(&b.nodes, depth, &o, &d, &p, &mut lanes);
             for i in 0..o.len() {
                 let a = cast_dag::<f32>(&g.nodes, depth, o[i], d[i], &p);
                 let c = cast_dag::<f32>(&b.nodes, depth, o[i], d[i], &p);

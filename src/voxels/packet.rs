@@ -22,8 +22,9 @@ use super::cast::{
     S_MAX,
 };
 use super::dag::Dag;
+use super::hits::collect;
 use super::octree::Octree;
-use super::render::{collect, VoxelHits};
+use super::render::VoxelHits;
 
 /// Lanes per packet.
 pub const W: usize = 8;
@@ -394,19 +395,11 @@ fn bits(mut m: u32) -> impl Iterator<Item = usize> {
 mod tests {
     use super::*;
     use crate::budget::MemBudget;
-    use crate::voxels::cast::Lod;
     use crate::voxels::dag::build_dag;
+    use crate::voxels::fixtures::{incoherent_in as rays, lod};
     use crate::voxels::octree::build;
-    use crate::voxels::raysets::incoherent;
     use crate::voxels::render::{cast_all, cast_all_dag};
     use crate::voxels::shape::Shape;
-
-    fn rays<F: CastReal>(n: u32, seed: u32) -> (Vec<[F; 3]>, Vec<[F; 3]>) {
-        incoherent(n, seed)
-            .into_iter()
-            .map(|(o, d)| (o.map(F::of), d.map(F::of)))
-            .unzip()
-    }
 
     fn same<F: CastReal>(a: &VoxelHits<F>, b: &VoxelHits<F>) {
         assert_eq!(a.hit, b.hit);
@@ -446,13 +439,7 @@ mod tests {
         let t = build(&Shape::Sphere { radius: 0.8 }, 8, &budget).unwrap();
         let (o, d) = rays::<f32>(2000, 4);
         for p in [
-            CastParams {
-                lod: Some(Lod {
-                    orig_size: 0.0,
-                    dir_size: 0.02,
-                }),
-                ..CastParams::default()
-            },
+            lod(0.02),
             CastParams {
                 near: 0.5,
                 far: 2.0,

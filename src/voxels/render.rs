@@ -14,8 +14,9 @@ use crate::parallel::par_collect;
 use crate::real::Real;
 
 use super::attributes::{AttrForm, Attributes};
-use super::cast::{cast, cast_contours, cast_dag, Addressing, CastHit, CastParams, CastReal};
+use super::cast::{cast, cast_contours, cast_dag, Addressing, CastParams, CastReal};
 use super::dag::Dag;
+use super::hits::{cast_chunks, collect, GRAIN};
 use super::octree::Octree;
 use super::referee::referee;
 use super::shape::Shape;
@@ -132,9 +133,11 @@ pub fn cast_all<F: CastReal>(
     d: &[[F; 3]],
     p: &CastParams,
 ) -> VoxelHits<F> {
-    collect(par_collect("voxels.cast", o.len(), |i| {
-        cast::<F>(&tree.nodes, tree.depth, o[i], d[i], p)
-    }))
+    cast_chunks("voxels.cast", o.len(), GRAIN, |r, out| {
+        for (i, h) in r.zip(out) {
+            *h = cast::<F>(&tree.nodes, tree.depth, o[i], d[i], p);
+        }
+    })
 }
 
 /// [`cast_all`] through the DAG (same loop, absolute addressing).
@@ -144,9 +147,11 @@ pub fn cast_all_dag<F: CastReal>(
     d: &[[F; 3]],
     p: &CastParams,
 ) -> VoxelHits<F> {
-    collect(par_collect("voxels.cast_dag", o.len(), |i| {
-        cast_dag::<F>(&dag.nodes, dag.depth, o[i], d[i], p)
-    }))
+    cast_chunks("voxels.cast_dag", o.len(), GRAIN, |r, out| {
+        for (i, h) in r.zip(out) {
+            *h = cast_dag::<F>(&dag.nodes, dag.depth, o[i], d[i], p);
+        }
+    })
 }
 
 /// [`cast_all`] (addressing [`super::cast::Relative`]) or [`cast_all_dag`]
@@ -159,10 +164,13 @@ pub fn cast_all_sse<F: CastReal, A: Addressing>(
     d: &[[F; 3]],
     p: &CastParams,
 ) -> Option<VoxelHits<F>> {
-    let res = par_collect("voxels.cast_sse", o.len(), |i| {
-        F::cast_sse::<A>(nodes, depth, o[i], d[i], p)
-    });
-    Some(collect(res.into_iter().collect::<Option<Vec<_>>>()?))
+    F::SIMD.then(|| {
+        cast_chunks("voxels.cast_sse", o.len(), GRAIN, |r, out| {
+            for (i, h) in r.zip(out) {
+                *h = F::cast_sse::<A>(nodes, depth, o[i], d[i], p).unwrap_or(*h);
+            }
+        })
+    })
 }
 
 /// [`cast_all`] or [`cast_all_dag`] (addressing `A`) by the lane cast
@@ -175,7 +183,11 @@ pub fn cast_all_lanes<F: CastReal, A: Addressing>(
     d: &[[F; 3]],
     p: &CastParams,
 ) -> Option<VoxelHits<F>> {
-    Some(collect(F::cast_all_lanes::<A>(nodes, depth, o, d, p)?))
+    F::SIMD.then(|| {
+        cast_chunks("voxels.cast_lanes", o.len(), GRAIN, |r, out| {
+            F::cast_lanes::<A>(nodes, depth, &o[r.clone()], &d[r], p, out)
+        })
+    })
 }
 
 /// [`cast_all`] with contours (`contours[attr]`, 0 = none); also returns
@@ -192,24 +204,6 @@ pub fn cast_all_contours<F: CastReal>(
     });
     let used = res.iter().map(|h| h.contour).collect();
     (collect(res), used)
-}
-
-/// Per-ray results in [`VoxelHits`] form.
-pub(crate) fn collect<F: CastReal>(res: Vec<CastHit<F>>) -> VoxelHits<F> {
-    let mut out = VoxelHits::default();
-    for h in res {
-        out.hit.push(h.hit as u8);
-        out.t.push(h.t);
-        out.leaf.push(if h.hit {
-            h.voxel.map(|v| v as i32)
-        } else {
-            [-1; 3]
-        });
-        out.normal.push(h.normal.map(|v| F::of(v as f64)));
-        out.iters.push(h.iters as i32);
-        out.capped += h.capped as u64;
-    }
-    out
 }
 
 /// Runs the referee on every ray (f64; `margin` as in [`referee`]).

@@ -13,7 +13,8 @@ use crate::real::Real;
 use crate::scene::voxels::VoxelScene;
 use crate::tensor::{Outputs, Tensor};
 use crate::voxels::batch::Batch;
-use crate::voxels::cast::CastReal;
+use crate::voxels::cast::{Absolute, CastReal, Relative};
+use crate::voxels::cast_lanes::{cast_all_lanes_on, LaneIsa};
 use crate::voxels::dag::{build_dag, Dag};
 use crate::voxels::gpu::gpu_params;
 use crate::voxels::node_order::breadth_first;
@@ -134,7 +135,59 @@ pub fn gpu_bench(
         ("dag", Through::Dag(&dag)),
     ];
     cpu_vs_gpu(&structures, gpu, sc, sets, budget, out)?;
+    lane_isas(tree, &dag, sc, sets, out);
     node_order(&dag, sc, sets, out)
+}
+
+/// The lane cast compiled for each [`LaneIsa`] from AVX2 up that this CPU
+/// has, in [`ROUNDS`] interleaved rounds per structure and set:
+/// `{structure}_lanes_{isa}_{set}_mrays_per_cpu_s` and `..._mrays_per_s`
+/// (wall), `{structure}_{set}_lanes_{isa}_over_avx2` (per CPU-second, same
+/// run), `{structure}_{set}_lanes_{isa}_differing_rays` (against AVX2).
+pub fn lane_isas(tree: &Octree, dag: &Dag, sc: &VoxelScene, sets: &Sets<f32>, out: &mut Outputs) {
+    let isas: Vec<LaneIsa> = LaneIsa::available(tree.nodes.len().max(dag.nodes.len()))
+        .into_iter()
+        .filter(|&i| i >= LaneIsa::Avx2)
+        .collect();
+    for (sname, dag_path) in [("octree", false), ("dag", true)] {
+        for (set, b) in sets.named() {
+            let p = b.params(sc.lod, sc.max_iter);
+            let cast = |isa| {
+                if dag_path {
+                    cast_all_lanes_on::<Absolute>(isa, &dag.nodes, dag.depth, &b.o, &b.d, &p)
+                } else {
+                    cast_all_lanes_on::<Relative>(isa, &tree.nodes, tree.depth, &b.o, &b.d, &p)
+                }
+            };
+            let mut acc = vec![(0.0, 0.0); isas.len()];
+            let mut res = vec![VoxelHits::default(); isas.len()];
+            for _ in 0..ROUNDS {
+                for (k, &isa) in isas.iter().enumerate() {
+                    let (h, wall, cpu) = timed(|| cast(isa));
+                    res[k] = h;
+                    acc[k] = (acc[k].0 + wall, acc[k].1 + cpu);
+                }
+            }
+            let n = b.o.len() as f64 * ROUNDS as f64;
+            for (k, isa) in isas.iter().enumerate() {
+                let name = format!("{isa:?}").to_lowercase();
+                let rate = per_cpu_s(n, acc[k].1);
+                out.metric(&format!("{sname}_lanes_{name}_{set}_mrays_per_cpu_s"), rate);
+                out.metric(
+                    &format!("{sname}_lanes_{name}_{set}_mrays_per_s"),
+                    n / acc[k].0.max(1e-12) / 1e6,
+                );
+                out.metric(
+                    &format!("{sname}_{set}_lanes_{name}_over_avx2"),
+                    rate / per_cpu_s(n, acc[0].1).max(1e-12),
+                );
+                out.metric(
+                    &format!("{sname}_{set}_lanes_{name}_differing_rays"),
+                    differing(&res[0], &res[k]) as f64,
+                );
+            }
+        }
+    }
 }
 
 /// The lane cast through the DAG and through its breadth-first copy
