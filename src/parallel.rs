@@ -45,6 +45,26 @@ pub fn par_chunks<T: Send>(
         });
 }
 
+/// [`par_chunks`] over two slices cut into the same chunks: `f(c, a_c,
+/// b_c)` with `grain_a` elements of `a` and `grain_b` of `b` per chunk.
+pub fn par_chunks2<A: Send, B: Send>(
+    label: &'static str,
+    (a, grain_a): (&mut [A], usize),
+    (b, grain_b): (&mut [B], usize),
+    f: impl Fn(usize, &mut [A], &mut [B]) + Sync,
+) {
+    let _span = tracing::debug_span!("par_chunks2", label, n = a.len()).entered();
+    let launch = meter::GLOBAL.open(label, a.len());
+    a.par_chunks_mut(grain_a.max(1))
+        .zip(b.par_chunks_mut(grain_b.max(1)))
+        .enumerate()
+        .for_each(|(c, (ca, cb))| {
+            let n = ca.len();
+            f(c, ca, cb);
+            launch.advance(n);
+        });
+}
+
 /// Maps `0..n` to a vector in parallel (index order is kept).
 pub fn par_collect<T: Send>(
     label: &'static str,

@@ -51,6 +51,8 @@ pub trait Real:
     /// The slice as `f32` when `Self` is `f32` (the hot loops' SIMD paths
     /// are written for f32 lanes; f64 keeps the scalar path).
     fn as_f32_slice(s: &[Self]) -> Option<&[f32]>;
+    /// [`Real::as_f32_slice`], mutable.
+    fn as_f32_slice_mut(s: &mut [Self]) -> Option<&mut [f32]>;
 }
 
 impl Real for f32 {
@@ -70,6 +72,10 @@ impl Real for f32 {
     fn as_f32_slice(s: &[f32]) -> Option<&[f32]> {
         Some(s)
     }
+    #[inline(always)]
+    fn as_f32_slice_mut(s: &mut [f32]) -> Option<&mut [f32]> {
+        Some(s)
+    }
 }
 
 impl Real for f64 {
@@ -87,6 +93,10 @@ impl Real for f64 {
     }
     #[inline(always)]
     fn as_f32_slice(_: &[f64]) -> Option<&[f32]> {
+        None
+    }
+    #[inline(always)]
+    fn as_f32_slice_mut(_: &mut [f64]) -> Option<&mut [f32]> {
         None
     }
 }

@@ -24,11 +24,11 @@ use crate::rays::RayGen;
 use crate::tensor::{Outputs, Tensor};
 
 use super::compose::Compose;
-use super::diff::{f_diff, DiffOptions, Reduce, Upstream};
+use super::diff::{f_diff_prepared, DiffOptions, Kernel::Lanes, Reduce, Upstream};
 use super::field::hash::{DensityAct, HashConfig, HashMlpDesc};
 use super::field::{ColorDesc, FieldDesc, Grid, GridDesc, Oob};
 use super::sample::{Sampling, TransPath};
-use super::{render, Chain, VolumeParams};
+use super::{prepare, render, render_prepared, Chain, VolumeParams};
 
 /// Adam (Kingma and Ba 2015), f64 state.
 #[derive(Clone, Debug)]
@@ -512,8 +512,13 @@ pub fn fit(cfg: &FitConfig, budget: &MemBudget) -> Result<FitReport> {
         for _ in 0..iters {
             let (mut gs, mut gc) = (vec![0.0; st.adam_s.len()], vec![0.0; st.adam_c.len()]);
             let mut l = 0.0;
+            // One f32 medium per iteration, shared by every view's forward
+            // and backward.
+            let prep = prepare::<f32>(&st.p, &gen.aabb, budget)?;
             for (cam, tgt) in train.iter().zip(&targets) {
-                let rgb = rgb_of(&st.p, cam, &gen, budget)?;
+                let rgb = render_prepared(cam, &gen, &prep, Chain::Fused, Compose::Sorted, budget)?
+                    .image
+                    .rgb;
                 l += mse(&rgb, tgt) / train.len() as f64;
                 let k = 2.0 / (3 * npix * train.len()) as f32;
                 let up = Upstream {
@@ -525,7 +530,7 @@ pub fn fit(cfg: &FitConfig, budget: &MemBudget) -> Result<FitReport> {
                     depth: None,
                     opacity: None,
                 };
-                let g = f_diff::<f32>(cam, &gen, &st.p, &up, &opt, None, budget)?;
+                let g = f_diff_prepared(cam, &gen, &st.p, &prep, &up, &opt, None, budget, Lanes)?;
                 let add = |acc: &mut [f64], v: &Option<Vec<f32>>| {
                     if let Some(v) = v {
                         for (a, x) in acc.iter_mut().zip(v) {

@@ -44,16 +44,17 @@ pub struct LaneRay {
 
 /// The packed f32 grid and the march, as the lanes read them.
 #[derive(Clone, Copy, Debug)]
+/// (The backward's lanes, `diff/lanes.rs`, index the same grid through it.)
 pub struct LaneMarch<'a> {
-    data: &'a [f32],
-    bmin: [f32; 3],
-    scale: [f32; 3],
+    pub(super) data: &'a [f32],
+    pub(super) bmin: [f32; 3],
+    pub(super) scale: [f32; 3],
     /// `n - 1` per axis.
-    top: [i32; 3],
+    pub(super) top: [i32; 3],
     /// Element strides of y and z (x is 4).
-    sy: i32,
-    sz: i32,
-    m: March<f32>,
+    pub(super) sy: i32,
+    pub(super) sz: i32,
+    pub(super) m: March<f32>,
 }
 
 impl<'a> LaneMarch<'a> {

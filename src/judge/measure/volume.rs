@@ -15,7 +15,7 @@ use crate::stats::summary::median;
 use crate::tensor::{Outputs, Tensor};
 use crate::volume::compose::Compose;
 use crate::volume::diff::{
-    f_diff, f_diff_kernel, forward_buffers, DiffOptions, Grads, Kernel, Reduce, Upstream,
+    f_diff, f_diff_prepared, forward_buffers, DiffOptions, Grads, Kernel, Reduce, Upstream,
 };
 use crate::volume::{prepare, render, render_prepared, Chain, VolumeParams};
 
@@ -177,10 +177,15 @@ fn sweep_point<F: Real>(
 
 /// Backward medians over `repeats`: forward time, fused chunked (lanes and,
 /// interleaved, the scalar walk they replace) and sorted, unfused (from kept
-/// forward buffers): grads_per_s, bwd_fwd_ratio (wall) and bwd_fwd_cpu_ratio
-/// (CPU seconds), scalar_grads_per_s and lanes_speedup (scalar / lanes, CPU
-/// seconds), bytes_per_sample_fused/unfused. Refuses lanes whose gradients
-/// differ from the scalar walk's.
+/// forward buffers): grads_per_s (after the set-up), call_time_s (the
+/// whole call), bwd_fwd_ratio (wall) and bwd_fwd_cpu_ratio
+/// (CPU seconds), each the whole `f_diff` call over the whole fused `render`
+/// call (each builds its own f32 medium, once: `prepare`);
+/// bwd_fwd_prepared_ratio (wall, the set-up left out on both sides: the
+/// backward after its set-up over the forward frame after `prepare`),
+/// scalar_grads_per_s and lanes_speedup (scalar / lanes, CPU seconds),
+/// bytes_per_sample_fused/unfused. Refuses lanes whose gradients differ
+/// from the scalar walk's.
 pub fn backward<F: Real>(
     cam: &Camera,
     gen: &RayGen,
@@ -204,7 +209,8 @@ pub fn backward<F: Real>(
         reduce: Reduce::Sorted,
         per_sample: false,
     };
-    let (mut tf, mut tb, mut tbs, mut tu, mut tsc) = (vec![], vec![], vec![], vec![], vec![]);
+    let mut t: [Vec<f64>; 7] = Default::default();
+    let [tf, tb, tbs, tu, tsc, tfp, tbp] = &mut t;
     let mut cpu = [0.0f64; 3];
     let (mut samples, mut bf, mut bu) = (0, 0, 0);
     let fwd = forward_buffers::<F>(gen, cam, p, budget)?;
@@ -216,14 +222,18 @@ pub fn backward<F: Real>(
     };
     for _ in 0..repeats {
         let c0 = process_cpu_s();
-        let t = Instant::now();
+        let t0 = Instant::now();
         let r = render::<F>(cam, gen, p, Chain::Fused, Compose::Sorted, budget)?;
-        tf.push(t.elapsed().as_secs_f64());
+        tf.push(t0.elapsed().as_secs_f64());
+        tfp.push(r.timings.fused + r.timings.img);
         samples = r.counters.samples;
         let c1 = process_cpu_s();
+        let t1 = Instant::now();
         let g = f_diff::<F>(cam, gen, p, w, &fused, None, budget)?;
+        tb.push(t1.elapsed().as_secs_f64());
         let c2 = process_cpu_s();
-        let s = f_diff_kernel::<F>(cam, gen, p, w, &fused, None, budget, Kernel::Scalar)?;
+        let prep = prepare::<F>(p, &gen.aabb, budget)?;
+        let s = f_diff_prepared(cam, gen, p, &prep, w, &fused, None, budget, Kernel::Scalar)?;
         let c3 = process_cpu_s();
         if bits(&g) != bits(&s) {
             return Err(Error::invalid(
@@ -236,7 +246,7 @@ pub fn backward<F: Real>(
             cpu[1] += c2 - c1;
             cpu[2] += c3 - c2;
         }
-        tb.push(g.time_s);
+        tbp.push(g.time_s);
         tsc.push(s.time_s);
         bf = g.bytes_per_sample;
         let g = f_diff::<F>(cam, gen, p, w, &fused_sorted, None, budget)?;
@@ -245,13 +255,14 @@ pub fn backward<F: Real>(
         tu.push(g.time_s);
         bu = g.bytes_per_sample;
     }
-    let (tf, tb) = (median(&mut tf), median(&mut tb));
-    let (tbs, tu, tsc) = (median(&mut tbs), median(&mut tu), median(&mut tsc));
+    let [tf, tb, tbs, tu, tsc, tfp, tbp] = t.map(|mut v| median(&mut v));
     let s = samples as f64;
     let mut out = Outputs::default();
     out.metric("forward_time_s", tf);
-    out.metric("time_s", tb).metric("grads_per_s", s / tb);
+    out.metric("time_s", tbp).metric("grads_per_s", s / tbp);
+    out.metric("call_time_s", tb);
     out.metric("bwd_fwd_ratio", tb / tf);
+    out.metric("bwd_fwd_prepared_ratio", tbp / tfp);
     out.metric("scalar_time_s", tsc)
         .metric("scalar_grads_per_s", s / tsc);
     if cpu.iter().all(|&c| c > 0.0) {

@@ -19,9 +19,11 @@
 //! the manifest case `vol_grad_fused_equals_unfused` compares against the
 //! unfused chain's scalar walk with memcmp).
 //!
-//! The grid reduction is unchanged: [`Scratch::cells`] hands each ray's
-//! samples to the scatter (back to front) or to the sorted records (front
-//! to back, as the scalar path's reversed records), ray after ray.
+//! The grid reduction's order is the scalar path's: ray after ray,
+//! [`Scratch::scatter`] adds each ray's samples back to front into the
+//! unit's dense grid (four 32-byte adds per inside cell, the scalar
+//! `scatter_dense`'s operations), [`Scratch::cells`] hands them to the
+//! sorted records front to back (as the scalar path's reversed records).
 //!
 //! Used where the forward's lanes are ([`LaneMarch::new`]: f32, packed grid
 //! with `oob: zero`, fixed sampling, product path, no occupancy, AVX2 at run
@@ -31,7 +33,8 @@ use crate::real::Real;
 
 use super::super::field::{Field, Grid, Oob};
 use super::super::fused_lanes::{LaneMarch, LaneRay, LaneSink, LaneStep, Query, LANES};
-use super::field_grad::{cell_of, grid_grad, Cell};
+use super::field_grad::{cell_inside, cell_of, corner_weight, grid_grad, Cell};
+use super::reduce::{scatter_dense, Dense};
 use super::walk::{cam_grads, lane_rays, CamSums, Ctx};
 
 /// What one step of a lane group hands to the grid reduction: lane `l`'s
@@ -67,16 +70,14 @@ impl Scratch {
     }
 
     /// Lane `l`'s samples that have a cell, as `(cell, [dsigma, dcolor])`,
-    /// back to front or front to back.
+    /// front to back (the sorted reduction's record order).
     pub(super) fn cells<F: Real>(
         &self,
         l: usize,
-        back_to_front: bool,
         ds: [F; 3],
         mut each: impl FnMut(Cell<F>, [F; 4]),
     ) {
-        let mut one = |k: usize| {
-            let e = &self.emit[k];
+        for e in &self.emit[..self.n[l]] {
             if e.some & (1 << l) != 0 {
                 let f = |v: f32| F::of(v as f64);
                 let cell = Cell {
@@ -86,37 +87,35 @@ impl Scratch {
                 };
                 each(cell, [0, 1, 2, 3].map(|c| f(e.v[c][l])));
             }
-        };
-        if back_to_front {
-            (0..self.n[l]).rev().for_each(&mut one);
-        } else {
-            (0..self.n[l]).for_each(&mut one);
         }
+    }
+
+    /// Lane `l`'s samples scattered back to front into a unit's dense
+    /// packed grid `out` of `p`'s shape: `scatter_dense` sample by sample,
+    /// its eight corners x four channels as four 32-byte adds (two corners
+    /// per x-row) where the cell is inside the grid, in f32 (same weights,
+    /// same `slot += w v` per element: the same bits).
+    pub(super) fn scatter<F: Real>(&self, l: usize, p: &Grid<F>, out: &mut Dense<F>) {
+        #[cfg(target_arch = "x86_64")]
+        // SAFETY: a `Scratch` is filled only by `group`, behind a
+        // `LaneGrad`, which exists only where AVX2 was detected.
+        unsafe {
+            avx2::scatter(self, l, p, out)
+        }
+        #[cfg(not(target_arch = "x86_64"))]
+        unreachable!("LaneMarch::new returns None off x86-64: no lane scratch to scatter")
     }
 }
 
-/// The grids and march of a lane backward, built once per pass.
+/// The grids and march of a lane backward, built once per pass. The lanes
+/// read the packed grid's geometry and values through the forward's
+/// [`LaneMarch`] (one description of the f32 grid for both directions).
 pub(super) struct LaneGrad<'a, F> {
     lm: LaneMarch<'a>,
     /// The density grid (the cell geometry `cell_of` reads) and the packed
     /// grid (the values).
     grid: &'a Grid<F>,
     packed: &'a Grid<F>,
-    geo: Geo<'a>,
-}
-
-/// The f32 view of the packed grid the lanes index.
-struct Geo<'a> {
-    data: &'a [f32],
-    bmin: [f32; 3],
-    scale: [f32; 3],
-    /// `n - 1` per axis.
-    top: [i32; 3],
-    /// Element strides of y and z (x is 4).
-    sy: i32,
-    sz: i32,
-    dt: f32,
-    bg: [f32; 3],
 }
 
 impl<'a, F: Real> LaneGrad<'a, F> {
@@ -130,23 +129,7 @@ impl<'a, F: Real> LaneGrad<'a, F> {
         if grid.oob != Oob::Zero || packed.ch != 4 {
             return None;
         }
-        let f = |v: F| v.f64() as f32;
-        let geo = Geo {
-            data: F::as_f32_slice(&packed.data)?,
-            bmin: grid.bmin.map(f),
-            scale: grid.scale.map(f),
-            top: [grid.nx, grid.ny, grid.nz].map(|n| n as i32 - 1),
-            sy: (4 * packed.nx) as i32,
-            sz: (4 * packed.nx * packed.ny) as i32,
-            dt: f(cx.m.dt),
-            bg: cx.m.background.map(f),
-        };
-        Some(LaneGrad {
-            lm,
-            grid,
-            packed,
-            geo,
-        })
+        Some(LaneGrad { lm, grid, packed })
     }
 
     /// `ds` of the cells handed out by [`Scratch::cells`].
@@ -191,7 +174,7 @@ pub(super) fn group<F: Real>(
     let log_tn = out.map(|(acc, _)| acc.log_t);
     #[cfg(target_arch = "x86_64")]
     // SAFETY: `lm` exists, so AVX2 was detected (`LaneMarch::new`).
-    let sums = unsafe { avx2::walk(&lg.geo, &r8, &up, log_tn, sc, &border) };
+    let sums = unsafe { avx2::walk(&lg.lm, &r8, &up, log_tn, sc, &border) };
     #[cfg(not(target_arch = "x86_64"))]
     let sums: [CamSums<f32>; LANES] = unreachable!("LaneMarch::new returns None off x86-64");
     let g = |v: f32| F::of(v as f64);
@@ -217,10 +200,14 @@ type Border<'a> = dyn Fn([f32; 3], [f32; 4]) -> Option<([i32; 3], [f32; 3], [f32
 mod avx2 {
     use std::arch::x86_64::*;
 
-    use super::{Border, Emit8, Geo, Scratch, LANES};
+    use super::{
+        cell_inside, corner_weight, scatter_dense, Border, Cell, Dense, Emit8, Scratch, LANES,
+    };
+    use crate::real::Real;
     use crate::volume::diff::walk::CamSums;
+    use crate::volume::field::Grid;
     use crate::volume::fused_lanes::avx2::kahan;
-    use crate::volume::fused_lanes::LaneRay;
+    use crate::volume::fused_lanes::{LaneMarch, LaneRay};
 
     #[inline]
     #[target_feature(enable = "avx2")]
@@ -270,6 +257,46 @@ mod avx2 {
         })
     }
 
+    /// [`Scratch::scatter`](super::Scratch::scatter).
+    #[target_feature(enable = "avx2")]
+    pub(super) unsafe fn scatter<F: Real>(sc: &Scratch, l: usize, p: &Grid<F>, out: &mut Dense<F>) {
+        // Corners `2 r`, `2 r + 1` are the eight floats at `rows[r]` from
+        // the base corner (four channels each).
+        let rows = [0, p.nx, p.nx * p.ny, p.nx * p.ny + p.nx].map(|o| 4 * o);
+        for e in sc.emit[..sc.n[l]].iter().rev() {
+            if e.some & (1 << l) == 0 {
+                continue;
+            }
+            let base = [0, 1, 2].map(|a| e.base[a][l] as i64);
+            let f = [0, 1, 2].map(|a| e.f[a][l]);
+            let v = [0, 1, 2, 3].map(|c| e.v[c][l]);
+            if cell_inside(p, base) {
+                out.touch_cell(p, base);
+                let b =
+                    4 * ((base[2] as usize * p.ny + base[1] as usize) * p.nx + base[0] as usize);
+                if let Some(d) = F::as_f32_slice_mut(&mut out.data) {
+                    // Inside: the four rows of eight floats are in `d`.
+                    assert!(b + rows[3] + 8 <= d.len());
+                    let vv = _mm256_setr_ps(v[0], v[1], v[2], v[3], v[0], v[1], v[2], v[3]);
+                    for (r, off) in rows.into_iter().enumerate() {
+                        let (w0, w1) = (corner_weight(f, 2 * r), corner_weight(f, 2 * r + 1));
+                        let wv = _mm256_setr_ps(w0, w0, w0, w0, w1, w1, w1, w1);
+                        let q = d.as_mut_ptr().add(b + off);
+                        let sum = _mm256_add_ps(_mm256_loadu_ps(q), _mm256_mul_ps(wv, vv));
+                        _mm256_storeu_ps(q, sum);
+                    }
+                    continue;
+                }
+            }
+            let c = Cell {
+                base,
+                f: f.map(|x| F::of(x as f64)),
+                ds: p.scale,
+            };
+            scatter_dense(p, Some(c), v.map(|x| F::of(x as f64)), out);
+        }
+    }
+
     /// `grid_grad`'s `dot` of the eight corners of each lane's cell,
     /// `(((0 + g0 c0) + g1 c1) + g2 c2) + g3 c3` per corner, from four
     /// 32-byte rows (two corners x four channels) per lane, transposed.
@@ -302,7 +329,7 @@ mod avx2 {
     /// fills `sc.emit` and returns each lane's camera sums.
     #[target_feature(enable = "avx2")]
     pub(super) unsafe fn walk(
-        geo: &Geo,
+        geo: &LaneMarch,
         rays: &[LaneRay; LANES],
         up: &[[f32; 5]; LANES],
         log_tn: [f32; LANES],
@@ -321,7 +348,7 @@ mod avx2 {
         let gd = lane(&|l| up[l][3]);
         // `backward_ray`'s start: T_N, the background term, g_O T_N.
         let tn: [f32; LANES] = std::array::from_fn(|l| log_tn[l].exp());
-        let bg = geo.bg;
+        let bg = geo.m.background;
         let s0 = lane(&|l| tn[l] * (up[l][0] * bg[0] + up[l][1] * bg[1] + up[l][2] * bg[2]));
         let got = lane(&|l| up[l][4] * tn[l]);
         let (zero, one, half) = (
@@ -343,7 +370,7 @@ mod avx2 {
         let minus1 = _mm256_set1_epi32(-1);
         let big = _mm256_set1_ps((1u32 << 30) as f32);
         let sign = _mm256_set1_ps(-0.0);
-        let dt = _mm256_set1_ps(geo.dt);
+        let dt = _mm256_set1_ps(geo.m.dt);
         let rows = [0, geo.sy, geo.sz, geo.sz + geo.sy];
         let data = geo.data.as_ptr();
         let steps = sc.steps.len();

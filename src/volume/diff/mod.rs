@@ -69,9 +69,8 @@ use crate::real::Real;
 
 use super::field::{ColorField, Field, FieldDesc, Medium};
 use super::integrate::{f_int, Integrated};
-use super::occupancy::Occupancy;
 use super::sample::{f_samp, Samples};
-use super::{Chain, VolumeParams};
+use super::{prepare, Chain, Prepared, VolumeParams};
 
 pub use camera::clip_planes;
 use camera::Pose;
@@ -226,16 +225,14 @@ pub fn forward_buffers<F: Real>(
     params: &VolumeParams,
     budget: &MemBudget,
 ) -> Result<Forward<F>> {
-    let m = params.march::<F>();
-    let medium = Medium::<F>::new(&params.field, &params.color);
-    let occ = occupancy::<F>(params, gen, budget)?;
+    let prep = prepare::<F>(params, &gen.aabb, budget)?;
     let rays = f_ray::<F>(cam, gen, budget)?;
-    let samples = f_samp(&rays, &medium, &m, occ.as_ref(), budget)?;
+    let samples = f_samp(&rays, &prep.medium, &prep.march, prep.occ.as_ref(), budget)?;
     budget.check(
         "f_int buffers",
         bytes_for(samples.len() as u64, Integrated::<F>::BYTES_PER_SAMPLE),
     )?;
-    let integrated = f_int(&samples, &m);
+    let integrated = f_int(&samples, &prep.march);
     Ok(Forward {
         rays,
         samples,
@@ -243,21 +240,13 @@ pub fn forward_buffers<F: Real>(
     })
 }
 
-fn occupancy<F: Real>(
-    params: &VolumeParams,
-    gen: &RayGen,
-    budget: &MemBudget,
-) -> Result<Option<Occupancy<F>>> {
-    Ok(match params.occupancy {
-        0 => None,
-        r => Some(Occupancy::<F>::build(&params.field, &gen.aabb, r, budget)?),
-    })
-}
-
 /// `f_diff`: the backward pass of `params` rendered through `cam` / `gen`
 /// for upstream gradients `up` (one per ray of the region). With
 /// [`Chain::Unfused`], `fwd` supplies the forward buffers (or they are made
 /// here, outside the timed backward); [`Chain::Fused`] re-walks every ray.
+/// Builds its own [`Prepared`] plan (the f32 medium the forward builds):
+/// a caller that renders the same frame shares one with
+/// [`f_diff_prepared`].
 pub fn f_diff<F: Real>(
     cam: &Camera,
     gen: &RayGen,
@@ -267,7 +256,8 @@ pub fn f_diff<F: Real>(
     fwd: Option<&Forward<F>>,
     budget: &MemBudget,
 ) -> Result<Grads<F>> {
-    f_diff_kernel(cam, gen, params, up, opt, fwd, budget, Kernel::Lanes)
+    let prep = prepare::<F>(params, &gen.aabb, budget)?;
+    f_diff_prepared(cam, gen, params, &prep, up, opt, fwd, budget, Kernel::Lanes)
 }
 
 /// How the fused chain walks its rays backward.
@@ -280,25 +270,33 @@ pub enum Kernel {
     Scalar,
 }
 
-/// [`f_diff`] with the walk chosen by `kernel` (same bits either way).
+/// [`f_diff`] over `prep`, the [`Prepared`] plan of `params` (built once
+/// per frame and shared with the forward: the medium, occupancy and
+/// march), with the walk chosen by `kernel` (same bits either way). Where
+/// the medium is the packed `[sigma, r, g, b]` grid, the density and
+/// colour grids are not converted again: the backward reads their cells'
+/// geometry ([`Grid::geometry`](super::field::Grid::geometry)) and the
+/// packed values.
 #[allow(clippy::too_many_arguments)]
-pub fn f_diff_kernel<F: Real>(
+pub fn f_diff_prepared<F: Real>(
     cam: &Camera,
     gen: &RayGen,
     params: &VolumeParams,
+    prep: &Prepared<F>,
     up: &Upstream<F>,
     opt: &DiffOptions,
     fwd: Option<&Forward<F>>,
     budget: &MemBudget,
     kernel: Kernel,
 ) -> Result<Grads<F>> {
-    let m = params.march::<F>();
+    let m = prep.march;
     m.validate()?;
     gen.validate()?;
     cam.validate()?;
-    let field = params.field.to_real::<F>();
-    let color = params.color.to_real::<F>();
-    let occ = occupancy::<F>(params, gen, budget)?;
+    let (field, color) = match &prep.medium {
+        Medium::Packed(p) => (Field::Grid(p.geometry(1)), ColorField::Grid(p.geometry(3))),
+        _ => (params.field.to_real::<F>(), params.color.to_real::<F>()),
+    };
     let made;
     let (rays, buffers) = match (opt.chain, fwd) {
         (Chain::Unfused, Some(f)) => (&f.rays, Some((&f.samples, &f.integrated))),
@@ -336,7 +334,7 @@ pub fn f_diff_kernel<F: Real>(
             ));
         }
     }
-    let medium = Medium::<F>::new(&params.field, &params.color);
+    let medium = &prep.medium;
     let shared_cell = match (&field, &color) {
         (Field::Grid(a), ColorField::Grid(b)) => {
             (a.nx, a.ny, a.nz, a.oob) == (b.nx, b.ny, b.nz, b.oob)
@@ -346,16 +344,16 @@ pub fn f_diff_kernel<F: Real>(
         _ => false,
     };
     let cx = Ctx {
-        medium: &medium,
+        medium,
         field: &field,
         color: &color,
         m: &m,
-        occ: occ.as_ref(),
+        occ: prep.occ.as_ref(),
         rays,
         up,
         pose: Pose::of(cam),
         shared_cell,
-        packed: match &medium {
+        packed: match medium {
             Medium::Packed(p) if shared_cell => Some(p),
             _ => None,
         },

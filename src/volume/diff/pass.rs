@@ -14,7 +14,10 @@ use super::super::integrate::Integrated;
 use super::super::sample::{walk_lattice, Samples};
 use super::field_grad::{param_count, param_index};
 use super::lanes::{self, LaneGrad, Scratch};
-use super::reduce::{push_rec, reduce_sorted, scatter_dense, sum_chunks, Dense, Unit, UNIT_RAYS};
+use super::reduce::{
+    push_rec, reduce_sorted, scatter_dense, split_packed, sum_chunks, sum_chunks_split, Dense,
+    Unit, UNIT_RAYS,
+};
 use super::walk::{ray_grads, replay_fused, replay_fused_lanes, replay_unfused, Ctx};
 use super::{DiffOptions, Grads, Ksum, Rec, Reduce};
 
@@ -98,9 +101,14 @@ pub(super) fn backward<F: Real>(
                 ));
             }
             let k = chunks as u64;
-            let dense = sig_grid.map_or(0, |g| g.data.len() as u64)
-                + col_grid.map_or(0, |g| g.data.len() as u64)
-                + hash.map_or(0, |h| h.param_count() as u64);
+            let grids = match packed {
+                Some(p) => p.data.len() as u64,
+                None => {
+                    sig_grid.map_or(0, |g| g.data.len() as u64)
+                        + col_grid.map_or(0, |g| g.data.len() as u64)
+                }
+            };
+            let dense = grids + hash.map_or(0, |h| h.param_count() as u64);
             budget.check(
                 "f_diff chunk grids",
                 bytes_for(dense, fsz).and_then(|b| b.checked_mul(k + 1)),
@@ -167,13 +175,11 @@ pub(super) fn backward<F: Real>(
                 let cams = lanes::group(cx, lg, &query, first, len, &mut sc);
                 for (l, cam) in cams.into_iter().take(len).enumerate() {
                     u.samples += sc.samples(l) as u64;
-                    sc.cells(l, !sorted, lg.ds(), |c, v| {
-                        if sorted {
-                            push_rec(p, Some(c), v, &mut u.pk_recs);
-                        } else {
-                            scatter_dense(p, Some(c), v, &mut u.pk_dense);
-                        }
-                    });
+                    if sorted {
+                        sc.cells(l, lg.ds(), |c, v| push_rec(p, Some(c), v, &mut u.pk_recs));
+                    } else {
+                        sc.scatter(l, p, &mut u.pk_dense);
+                    }
                     u.cam.push(cam);
                 }
             }
@@ -281,15 +287,13 @@ pub(super) fn backward<F: Real>(
     let mut out_units = out_units;
     let (dsigma, dcolor) = match (packed, sorted) {
         (Some(p), _) => {
-            let pk = if sorted {
+            let (sig, col) = if sorted {
                 let parts = out_units.iter_mut().map(|u| std::mem::take(&mut u.pk_recs));
-                reduce_sorted(p, parts.collect())
+                split_packed(&reduce_sorted(p, parts.collect()))
             } else {
                 let parts: Vec<&Dense<F>> = out_units.iter().map(|u| &u.pk_dense).collect();
-                sum_chunks(&parts, p.data.len())
+                sum_chunks_split(&parts, p.data.len() / 4)
             };
-            let sig = pk.chunks(4).map(|v| v[0]).collect();
-            let col = pk.chunks(4).flat_map(|v| [v[1], v[2], v[3]]).collect();
             (Some(sig), Some(col))
         }
         (None, true) => (

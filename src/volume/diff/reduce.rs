@@ -73,6 +73,29 @@ impl<F: Real> Dense<F> {
     pub(super) fn touch_all(&mut self) {
         self.rows.fill(true);
     }
+
+    /// Marks row `q` touched; its first touch writes its zeros, so the
+    /// pages of the (lazily zeroed) buffer fault in once, on a write,
+    /// rather than twice (a read maps the shared zero page, the first `+=`
+    /// then copies it and flushes every core's TLB).
+    #[inline(always)]
+    pub(super) fn touch(&mut self, q: usize) {
+        if !self.rows[q] {
+            self.rows[q] = true;
+            let end = ((q + 1) * self.row).min(self.data.len());
+            self.data[q * self.row..end].fill(F::zero());
+        }
+    }
+
+    /// [`Dense::touch`] of the four x-rows of nodes of the cell at
+    /// `base` (all eight corners inside `g`).
+    #[inline(always)]
+    pub(super) fn touch_cell(&mut self, g: &Grid<F>, base: [i64; 3]) {
+        let r = base[2] as usize * g.ny + base[1] as usize;
+        for q in [r, r + 1, r + g.ny, r + g.ny + 1] {
+            self.touch(q);
+        }
+    }
 }
 
 pub(super) fn scatter_dense<F: Real, const C: usize>(
@@ -86,10 +109,7 @@ pub(super) fn scatter_dense<F: Real, const C: usize>(
     };
     if cell_inside(g, c.base) {
         let b = (c.base[2] as usize * g.ny + c.base[1] as usize) * g.nx + c.base[0] as usize;
-        let r = c.base[2] as usize * g.ny + c.base[1] as usize;
-        for q in [r, r + 1, r + g.ny, r + g.ny + 1] {
-            out.rows[q] = true;
-        }
+        out.touch_cell(g, c.base);
         for (d, o) in corner_offsets(g).into_iter().enumerate() {
             let w = corner_weight(c.f, d);
             let slot = &mut out.data[(b + o) * C..(b + o + 1) * C];
@@ -101,7 +121,7 @@ pub(super) fn scatter_dense<F: Real, const C: usize>(
     }
     for d in 0..8 {
         if let Some(node) = corner_node(g, c.base, d) {
-            out.rows[node / g.nx] = true;
+            out.touch(node / g.nx);
             let w = corner_weight(c.f, d);
             for ch in 0..C {
                 out.data[node * C + ch] += w * v[ch];
@@ -172,25 +192,81 @@ pub(super) fn reduce_sorted<F: Real, const C: usize>(
 pub(super) fn sum_chunks<F: Real>(parts: &[&Dense<F>], len: usize) -> Vec<F> {
     let mut out = vec![F::zero(); len];
     crate::parallel::par_chunks("f_diff_chunk_sum", &mut out, 1 << 14, |ci, chunk| {
-        let (first, end) = (ci << 14, (ci << 14) + chunk.len());
-        for p in parts {
-            let mut e = first;
-            while e < end {
-                let r = e / p.row;
-                let stop = ((r + 1) * p.row).min(end);
-                if p.rows[r] {
-                    for (o, v) in chunk[e - first..stop - first]
-                        .iter_mut()
-                        .zip(&p.data[e..stop])
-                    {
-                        *o += *v;
-                    }
-                }
-                e = stop;
-            }
-        }
+        sum_range(parts, ci << 14, chunk)
     });
     out
+}
+
+/// `out[i] = sum of the parts' elements first + i` in part order, skipping
+/// untouched rows.
+fn sum_range<F: Real>(parts: &[&Dense<F>], first: usize, out: &mut [F]) {
+    let end = first + out.len();
+    // A write first: one page fault per page, no copy-on-write (`Dense::touch`).
+    out.fill(F::zero());
+    for p in parts {
+        let mut e = first;
+        while e < end {
+            let r = e / p.row;
+            let stop = ((r + 1) * p.row).min(end);
+            if p.rows[r] {
+                for (o, v) in out[e - first..stop - first]
+                    .iter_mut()
+                    .zip(&p.data[e..stop])
+                {
+                    *o += *v;
+                }
+            }
+            e = stop;
+        }
+    }
+}
+
+/// [`sum_chunks`] of packed `[sigma, r, g, b]` grids of `nodes` nodes,
+/// split as it goes into `dsigma` (one per node) and `dcolor` (three per
+/// node): the same sums, without a packed total.
+pub(super) fn sum_chunks_split<F: Real>(parts: &[&Dense<F>], nodes: usize) -> (Vec<F>, Vec<F>) {
+    const NODES: usize = 1 << 12;
+    let mut sig = vec![F::zero(); nodes];
+    let mut col = vec![F::zero(); 3 * nodes];
+    let (a, b) = ((&mut sig[..], NODES), (&mut col[..], 3 * NODES));
+    crate::parallel::par_chunks2("f_diff_chunk_sum", a, b, |ci, s, c| {
+        let mut pk = vec![F::zero(); 4 * s.len()];
+        sum_range(parts, 4 * ci * NODES, &mut pk);
+        for ((s, c), v) in s
+            .iter_mut()
+            .zip(c.chunks_exact_mut(3))
+            .zip(pk.chunks_exact(4))
+        {
+            *s = v[0];
+            c.copy_from_slice(&v[1..]);
+        }
+    });
+    (sig, col)
+}
+
+/// The packed `[sigma, r, g, b]` node gradients split into `dsigma` (one
+/// per node) and `dcolor` (three per node), in parallel.
+pub(super) fn split_packed<F: Real>(pk: &[F]) -> (Vec<F>, Vec<F>) {
+    const NODES: usize = 1 << 14;
+    let n = pk.len() / 4;
+    let mut sig = vec![F::zero(); n];
+    let mut col = vec![F::zero(); 3 * n];
+    crate::parallel::par_chunks2(
+        "f_diff_split",
+        (&mut sig[..], NODES),
+        (&mut col[..], 3 * NODES),
+        |ci, s, c| {
+            for ((s, c), v) in s
+                .iter_mut()
+                .zip(c.chunks_exact_mut(3))
+                .zip(pk[4 * ci * NODES..].chunks_exact(4))
+            {
+                *s = v[0];
+                c.copy_from_slice(&v[1..]);
+            }
+        },
+    );
+    (sig, col)
 }
 
 /// What one unit of rays (a contiguous range) produced.

@@ -460,7 +460,10 @@ fn lane_backward_equals_the_scalar_walk_bit_for_bit() {
                 reduce,
                 per_sample: false,
             };
-            let run = |k| f_diff_kernel::<f32>(&cam, &gen, &p, &u, &opt, None, &budget, k).unwrap();
+            let prep = prepare::<f32>(&p, &gen.aabb, &budget).unwrap();
+            let run = |k| {
+                f_diff_prepared::<f32>(&cam, &gen, &p, &prep, &u, &opt, None, &budget, k).unwrap()
+            };
             let (lanes, scalar) = (run(Kernel::Lanes), run(Kernel::Scalar));
             assert_eq!(grad_bits(&lanes), grad_bits(&scalar), "es {es} {reduce:?}");
             seen += scalar.samples;

@@ -199,6 +199,23 @@ impl<F: Real> Grid<F> {
         }
     }
 
+    /// This grid's shape, box and OOB policy with `ch` channels and no
+    /// values, for code that reads a cell's geometry only (the backward's
+    /// cells when the values live in the packed medium). A value read from
+    /// it panics (index out of bounds); it never returns a wrong value.
+    pub fn geometry(&self, ch: usize) -> Grid<F> {
+        Grid {
+            nx: self.nx,
+            ny: self.ny,
+            nz: self.nz,
+            ch,
+            data: Vec::new(),
+            oob: self.oob,
+            bmin: self.bmin,
+            scale: self.scale,
+        }
+    }
+
     /// Trilinear interpolation of channels `0..C` at world point `x`.
     /// Index coordinate `u = (x - min) * scale`; corner `i0 = floor(u)`,
     /// weight `f = u - i0` per axis; lerp along x, then y, then z (this order
