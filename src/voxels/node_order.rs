@@ -100,17 +100,15 @@ mod tests {
     use crate::voxels::cast::{cast_dag, Absolute, CastHit, CastParams};
     use crate::voxels::cast_lanes::cast_lanes;
     use crate::voxels::dag::build_dag;
-    use crate::voxels::fixtures::incoherent_in;
+    use crate::voxels::fixtures::{incoherent_in, scenes};
     use crate::voxels::octree::build;
     use crate::voxels::shape::Shape;
 
     #[test]
     fn breadth_first_copy_casts_and_indexes_exactly_like_the_dag() {
         let budget = MemBudget::fixed(1 << 30);
-        for (s, depth) in [
-            (Shape::Sphere { radius: 0.8 }, 7),
-            (Shape::Menger { level: 4 }, 7),
-        ] {
+        // The sphere and the sponge of the shared fixture list.
+        for (s, depth) in scenes().into_iter().take(2) {
             let t = build(&s, depth, &budget).unwrap();
             let g = build_dag(&t, &budget).unwrap();
             let b = breadth_first(&g);

@@ -396,7 +396,7 @@ mod tests {
     use super::*;
     use crate::budget::MemBudget;
     use crate::voxels::dag::build_dag;
-    use crate::voxels::fixtures::{incoherent_in as rays, lod};
+    use crate::voxels::fixtures::{incoherent_in as rays, lod, scenes};
     use crate::voxels::octree::build;
     use crate::voxels::render::{cast_all, cast_all_dag};
     use crate::voxels::shape::Shape;
@@ -415,10 +415,8 @@ mod tests {
     #[test]
     fn packets_equal_the_per_ray_cast_bit_for_bit_in_f32_and_f64() {
         let budget = MemBudget::fixed(1 << 30);
-        for (s, depth) in [
-            (Shape::Sphere { radius: 0.8 }, 7),
-            (Shape::Menger { level: 4 }, 7),
-        ] {
+        // The sphere and the sponge of the shared fixture list.
+        for (s, depth) in scenes().into_iter().take(2) {
             let t = build(&s, depth, &budget).unwrap();
             let g = build_dag(&t, &budget).unwrap();
             let (o, d) = rays::<f32>(3000, depth);
