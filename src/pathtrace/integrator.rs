@@ -40,6 +40,7 @@ use crate::budget::{bytes_for, MemBudget};
 use crate::camera::RealCamera;
 use crate::error::{Error, Result};
 use crate::parallel::par_collect;
+use crate::rng::sobol::pixel_key;
 
 /// A scene ready to trace: shapes, their materials, the lights (indices of
 /// shapes with an emitter material; quads only) and a uniform environment.
@@ -521,8 +522,9 @@ fn row_sums(
     if p.tracer == Tracer::Scalar {
         for (i, s) in sums.iter_mut().enumerate() {
             let u = u0 + i as u32;
+            let pk = pixel_key(p.seed, v * p.width + u);
             for k in 0..p.spp {
-                let rng = PathRng::of(p.sampler, p.seed, v * p.width + u, k);
+                let rng = PathRng::keyed(p.sampler, pk, k);
                 let (o, d) = camera_ray(cam, u, v, &rng);
                 s.add(trace(scene, o, d, &rng, p.max_bounces, p.rr_depth));
             }
@@ -530,13 +532,16 @@ fn row_sums(
         return sums;
     }
     let total = sums.len() * spp;
+    let pks: Vec<u32> = (u0..u1)
+        .map(|u| pixel_key(p.seed, v * p.width + u))
+        .collect();
     let mut buf = vec![Vec3A::ZERO; total.min(BATCH)];
     for b0 in (0..total).step_by(BATCH) {
         let n = (total - b0).min(BATCH);
         let start = |j: usize| {
             let (i, k) = ((b0 + j) / spp, (b0 + j) % spp);
             let u = u0 + i as u32;
-            let rng = PathRng::of(p.sampler, p.seed, v * p.width + u, k as u32);
+            let rng = PathRng::keyed(p.sampler, pks[i], k as u32);
             let (o, d) = camera_ray(cam, u, v, &rng);
             (o, d, rng)
         };

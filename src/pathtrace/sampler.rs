@@ -14,7 +14,7 @@
 use serde::Deserialize;
 
 use super::lanes::{F8, LANES, U8};
-use crate::rng::sobol::{pixel_key, sobol1, sobol2, unit_f32};
+use crate::rng::sobol::{pixel_key, sobol1, sobol1_rev, sobol2, sobol2_rev, unit_f32};
 use crate::rng::{pcg, rand_table};
 
 /// Which random dimension each decision uses. Dimensions 0 and 1 jitter the
@@ -91,12 +91,12 @@ pub fn sobol_u32(seed: u32, pixel: u32, sample: u32, dim: u32) -> u32 {
 /// One sample's random numbers with the per-sample hashes done once:
 /// independent `key = pcg(pcg(pcg(seed) ^ pixel) ^ sample)`, `rand =
 /// pcg(key ^ dim)`; Sobol' the pixel key `pcg(pcg(seed) ^ pixel)` and the
-/// sample index. Floats `(word >> 8) 2^-24`.
+/// sample index reversed. Floats `(word >> 8) 2^-24`.
 #[derive(Clone, Copy, Debug)]
 pub struct PathRng {
     key: u32,
     pk: u32,
-    index: u32,
+    rindex: u32,
     sobol: bool,
 }
 
@@ -108,11 +108,16 @@ impl PathRng {
     }
     #[inline]
     pub fn of(sampler: Sampler, seed: u32, pixel: u32, sample: u32) -> PathRng {
-        let pk = pixel_key(seed, pixel);
+        PathRng::keyed(sampler, pixel_key(seed, pixel), sample)
+    }
+    /// [`PathRng::of`] with the pixel key `pk = pixel_key(seed, pixel)`
+    /// given (a renderer hashes it once per pixel, not per sample).
+    #[inline]
+    pub fn keyed(sampler: Sampler, pk: u32, sample: u32) -> PathRng {
         PathRng {
             key: pcg(pk ^ sample),
             pk,
-            index: sample,
+            rindex: sample.reverse_bits(),
             sobol: sampler == Sampler::Sobol,
         }
     }
@@ -123,8 +128,8 @@ impl PathRng {
             return unit_f32(pcg(self.key ^ dim));
         }
         match sobol_pair(dim) {
-            Some((d, c)) => unit_f32(sobol2(self.pk, self.index, d)[c]),
-            None => unit_f32(sobol1(self.pk, self.index, dim)),
+            Some((d, c)) => unit_f32(sobol2_rev(self.pk, self.rindex, d)[c]),
+            None => unit_f32(sobol1_rev(self.pk, self.rindex, dim)),
         }
     }
     /// The values of dimensions `dim` and `dim + 1`, a Sobol' pair.
@@ -133,7 +138,7 @@ impl PathRng {
         if !self.sobol {
             return [self.f(dim), self.f(dim + 1)];
         }
-        sobol2(self.pk, self.index, dim).map(unit_f32)
+        sobol2_rev(self.pk, self.rindex, dim).map(unit_f32)
     }
 }
 
@@ -142,14 +147,14 @@ impl PathRng {
 pub struct Rng8 {
     key: U8,
     pk: U8,
-    index: U8,
+    rindex: U8,
 }
 
 impl Rng8 {
     /// Lane `k` takes `r`'s numbers.
     #[inline(always)]
     pub fn set_lane(&mut self, k: usize, r: &PathRng) {
-        (self.key.0[k], self.pk.0[k], self.index.0[k]) = (r.key, r.pk, r.index);
+        (self.key.0[k], self.pk.0[k], self.rindex.0[k]) = (r.key, r.pk, r.rindex);
     }
     /// [`PathRng::f`] per lane for a 1-D dimension `dim`.
     #[inline(always)]
@@ -159,7 +164,7 @@ impl Rng8 {
         }
         let mut r = F8::default();
         for k in 0..LANES {
-            r.0[k] = unit_f32(sobol1(self.pk.0[k], self.index.0[k], dim.0[k]));
+            r.0[k] = unit_f32(sobol1_rev(self.pk.0[k], self.rindex.0[k], dim.0[k]));
         }
         r
     }
@@ -171,7 +176,7 @@ impl Rng8 {
         }
         let (mut a, mut b) = (F8::default(), F8::default());
         for k in 0..LANES {
-            let [x, y] = sobol2(self.pk.0[k], self.index.0[k], dim.0[k]);
+            let [x, y] = sobol2_rev(self.pk.0[k], self.rindex.0[k], dim.0[k]);
             (a.0[k], b.0[k]) = (unit_f32(x), unit_f32(y));
         }
         (a, b)

@@ -296,14 +296,17 @@ unsafe fn run_avx2<F: Fn(usize) -> (Vec3A, Vec3A, PathRng)>(
     run::<true, F>(soa, tab, start, limits, out)
 }
 
-/// [`run`] compiled with AVX-512F/VL/DQ/BW as well: still eight lanes and
-/// the same IEEE operations (no FMA formed), but 32 vector registers, so
-/// the path state spills less (Zen 4: 0.89 vs 0.99 CPU-s, docs/PERF.md).
+/// [`run`] compiled with AVX-512F/VL/DQ/BW and GFNI as well: still eight
+/// lanes and the same IEEE operations (no FMA formed), but 32 vector
+/// registers, so the path state spills less (Zen 4: 0.89 vs 0.99 CPU-s,
+/// docs/PERF.md), and `u32::reverse_bits` (the Sobol' sampler's digit
+/// reversals) is a byte shuffle and one `vgf2p8affineqb` instead of seven
+/// instructions.
 ///
 /// # Safety
-/// The CPU must have AVX2, FMA and AVX-512F/VL/DQ/BW.
+/// The CPU must have AVX2, FMA, AVX-512F/VL/DQ/BW and GFNI.
 #[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2,fma,avx512f,avx512vl,avx512dq,avx512bw")]
+#[target_feature(enable = "avx2,fma,avx512f,avx512vl,avx512dq,avx512bw,gfni")]
 unsafe fn run_avx512<F: Fn(usize) -> (Vec3A, Vec3A, PathRng)>(
     soa: &Soa8,
     tab: &Tables,

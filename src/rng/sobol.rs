@@ -73,19 +73,27 @@ pub fn zeta(i: u32) -> u32 {
 const SEED_X: u32 = 0x9e37_79b9;
 const SEED_Y: u32 = 0x85eb_ca6b;
 
-/// The shuffled index of sample `index` for the pair at `dim`, and the
-/// pair's key `pcg(pk ^ dim)`.
+/// The shuffled index of the sample whose index reversed is `rindex`, for
+/// the pair at `dim` (`owen(index, h)`), and the pair's key
+/// `h = pcg(pk ^ dim)`.
 #[inline(always)]
-fn shuffled(pk: u32, index: u32, dim: u32) -> (u32, u32) {
+fn shuffled(pk: u32, rindex: u32, dim: u32) -> (u32, u32) {
     let h = pcg(pk ^ dim);
-    (owen(index, h), h)
+    (lk(rindex, h).reverse_bits(), h)
 }
 
 /// The padded, scrambled 2-D point of sample `index` for the dimension
 /// pair `(dim, dim + 1)` of the pixel with key `pk`.
 #[inline(always)]
 pub fn sobol2(pk: u32, index: u32, dim: u32) -> [u32; 2] {
-    let (i, h) = shuffled(pk, index, dim);
+    sobol2_rev(pk, index.reverse_bits(), dim)
+}
+
+/// [`sobol2`] of the sample whose index reversed is `rindex` (samplers
+/// reverse a sample's index once for all its dimensions).
+#[inline(always)]
+pub fn sobol2_rev(pk: u32, rindex: u32, dim: u32) -> [u32; 2] {
+    let (i, h) = shuffled(pk, rindex, dim);
     // owen(reverse(i)) and owen(reverse(zeta(i))), the reversals cancelled.
     [
         lk(i, h.wrapping_mul(SEED_X)).reverse_bits(),
@@ -97,7 +105,13 @@ pub fn sobol2(pk: u32, index: u32, dim: u32) -> [u32; 2] {
 /// the single dimension `dim`.
 #[inline(always)]
 pub fn sobol1(pk: u32, index: u32, dim: u32) -> u32 {
-    let (i, h) = shuffled(pk, index, dim);
+    sobol1_rev(pk, index.reverse_bits(), dim)
+}
+
+/// [`sobol1`] of the sample whose index reversed is `rindex`.
+#[inline(always)]
+pub fn sobol1_rev(pk: u32, rindex: u32, dim: u32) -> u32 {
+    let (i, h) = shuffled(pk, rindex, dim);
     lk(i, h.wrapping_mul(SEED_X)).reverse_bits()
 }
 
