@@ -677,8 +677,45 @@ mod tests {
         assert!((mean - 0.5).abs() < 0.01, "{mean}");
     }
 
+    /// Each pixel is the mean of `trace` over samples `0..spp` of that
+    /// pixel, sample `k` drawing `PathRng::of(sampler, seed, pixel, k)`
+    /// (SCENES.md's `rand(seed, pixel, sample, dim)`) and jittered by its
+    /// dimensions 0 and 1, bit for bit: the renderer's keys hashed once per
+    /// pixel and its reversed sample indices change no number. Both
+    /// samplers, the scalar and wavefront tracers, 5 spp (not a power of 2).
     #[test]
-    fn renders_are_identical_across_thread_counts() {
+    fn every_sample_draws_the_numbers_of_its_own_pixel_and_index() {
+        let (scene, cam) = small_scene();
+        for sampler in [Sampler::Independent, Sampler::Sobol] {
+            for tracer in [Tracer::Scalar, Tracer::Wavefront] {
+                let p = RenderParams {
+                    sampler,
+                    tracer,
+                    ..params(5)
+                };
+                let img = render(&scene, &cam, &p, &MemBudget::fixed(1 << 30)).unwrap();
+                for (i, px) in img.rgb.iter().enumerate() {
+                    let (u, v) = (i as u32 % 16, i as u32 / 16);
+                    let mut sum = [0.0f64; 3];
+                    for k in 0..5 {
+                        let rng = PathRng::of(sampler, 1, i as u32, k);
+                        let [jx, jy] = [rng.f(0), rng.f(1)];
+                        let (o, d) = cam.ray(u as f32 + jx, v as f32 + jy);
+                        let (o, d) = (Vec3A::from_array(o), Vec3A::from_array(d));
+                        let l = trace(&scene, o, d, &rng, 64, 5);
+                        for (s, x) in sum.iter_mut().zip(l.to_array()) {
+                            *s += x as f64;
+                        }
+                    }
+                    let want = sum.map(|x| (x / 5.0) as f32);
+                    assert_eq!(*px, want, "{sampler:?} {tracer:?} pixel {i}");
+                }
+            }
+        }
+    }
+
+    /// A light quad, a floor and a metal sphere seen by a 16x16 camera.
+    fn small_scene() -> (Scene, RealCamera<f32>) {
         let q = Quad::new(
             Vec3A::new(-0.3, 1.5, -0.3),
             Vec3A::new(0.6, 0.0, 0.0),
@@ -717,7 +754,12 @@ mod tests {
         let scene = Scene::new(&objs, mats, [0.0; 3]).unwrap();
         let cam = Camera::pinhole_look_at([0.0, 0.0, 4.0], [0.0; 3], [0.0, 1.0, 0.0], 40.0, 16, 16)
             .unwrap();
-        let cam = cam.to_real(16, 16);
+        (scene, cam.to_real(16, 16))
+    }
+
+    #[test]
+    fn renders_are_identical_across_thread_counts() {
+        let (scene, cam) = small_scene();
         let b = MemBudget::fixed(1 << 30);
         let a = crate::parallel::with_threads(1, || render(&scene, &cam, &params(8), &b).unwrap());
         let c = crate::parallel::with_threads(3, || render(&scene, &cam, &params(8), &b).unwrap());
