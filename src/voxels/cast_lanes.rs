@@ -8,7 +8,9 @@
 //! advances every live lane: the descriptors of all lanes are one gather
 //! (eight loads in flight), PUSH, ADVANCE and POP are computed on every lane
 //! and blended by masks (no data-dependent branch in the step), child
-//! addresses and POP's stack reads are gathers, POP's highest differing bit
+//! addresses and POP's stack reads are gathers, a PUSH prefetches each
+//! pushed lane's child descriptor (the group's next step gathers it after
+//! the other group's step has run), POP's highest differing bit
 //! is the exponent of the bits converted to float (exact: they fit 24 bits
 //! whenever the new scale is below [`S_MAX`]). A lane whose ray stops,
 //! exits or hits the iteration cap is finished by the scalar
@@ -143,7 +145,9 @@ mod avx2 {
     /// Lane groups per stream. Measured in one run (shared machine, 30
     /// interleaved rounds, sphere d10 and Menger d10, octree and DAG,
     /// 2^18 rays, docs/PERF.md): one group 0.91-0.97x of two, four
-    /// 0.96-1.02x of two.
+    /// 0.96-1.02x of two; with the descriptor prefetch (12 interleaved
+    /// rounds, loaded shared machine) three groups 0.92-1.09x of two, four
+    /// 0.93-1.09x.
     const G: usize = 2;
 
     /// Stack entries per lane (scales 0..=S_MAX).
@@ -323,6 +327,19 @@ mod avx2 {
             _mm256_shuffle_epi8(pop_lut, hi),
         );
         _mm256_add_epi32(_mm256_add_epi32(s.parent, ofs), cnt)
+    }
+
+    /// Starts the load of each `push` lane's descriptor `nodes[2 * slot]`:
+    /// the next step of this group gathers it, after the other groups'
+    /// steps, so the miss overlaps their work instead of stalling the loop.
+    #[inline(always)]
+    unsafe fn prefetch(base: *const i32, slot: __m256i, push: __m256i) {
+        let mut at = [0i32; W];
+        _mm256_storeu_si256(at.as_mut_ptr() as *mut __m256i, slot);
+        for l in bits(mask_i(push)) {
+            let p = base.wrapping_add(2 * at[l] as u32 as usize) as *const i8;
+            _mm_prefetch::<_MM_HINT_T0>(p);
+        }
     }
 
     /// Loop constants of a stream.
@@ -538,6 +555,7 @@ mod avx2 {
             } else {
                 child_relative(base, s, cm, push)
             };
+            prefetch(base, child, push);
             let halfs = _mm256_mul_ps(s.se, half);
             let mut idx_push = zi;
             let pf = _mm256_castsi256_ps(push);
