@@ -8,9 +8,10 @@
 //! advances every live lane: the descriptors of all lanes are one gather
 //! (eight loads in flight), PUSH, ADVANCE and POP are computed on every lane
 //! and blended by masks (no data-dependent branch in the step), child
-//! addresses and POP's stack reads are gathers, a PUSH prefetches each
-//! pushed lane's child descriptor (the group's next step gathers it after
-//! the other group's step has run), POP's highest differing bit
+//! addresses and POP's stack reads are gathers, an octree PUSH prefetches
+//! each pushed lane's child descriptor (the group's next step gathers it
+//! after the other group's step has run; not the DAG, where it cost
+//! coherent rays 10-16%, docs/PERF.md), POP's highest differing bit
 //! is the exponent of the bits converted to float (exact: they fit 24 bits
 //! whenever the new scale is below [`S_MAX`]). A lane whose ray stops,
 //! exits or hits the iteration cap is finished by the scalar
@@ -555,7 +556,9 @@ mod avx2 {
             } else {
                 child_relative(base, s, cm, push)
             };
-            prefetch(base, child, push);
+            if !A::ABSOLUTE {
+                prefetch(base, child, push);
+            }
             let halfs = _mm256_mul_ps(s.se, half);
             let mut idx_push = zi;
             let pf = _mm256_castsi256_ps(push);
