@@ -554,11 +554,10 @@ mod avx2 {
                 let hi = _mm256_mask_i32gather_epi32::<4>(zi, base, hi_slot, push);
                 _mm256_add_epi32(hi, _mm256_xor_si256(shift, _mm256_set1_epi32(7)))
             } else {
-                child_relative(base, s, cm, push)
-            };
-            if !A::ABSOLUTE {
+                let child = child_relative(base, s, cm, push);
                 prefetch(base, child, push);
-            }
+                child
+            };
             let halfs = _mm256_mul_ps(s.se, half);
             let mut idx_push = zi;
             let pf = _mm256_castsi256_ps(push);
