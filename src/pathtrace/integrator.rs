@@ -695,19 +695,19 @@ mod tests {
                 };
                 let img = render(&scene, &cam, &p, &MemBudget::fixed(1 << 30)).unwrap();
                 for (i, px) in img.rgb.iter().enumerate() {
-                    let (u, v) = (i as u32 % 16, i as u32 / 16);
+                    let (u, v) = (i as u32 % p.width, i as u32 / p.width);
                     let mut sum = [0.0f64; 3];
-                    for k in 0..5 {
-                        let rng = PathRng::of(sampler, 1, i as u32, k);
+                    for k in 0..p.spp {
+                        let rng = PathRng::of(sampler, p.seed, i as u32, k);
                         let [jx, jy] = [rng.f(0), rng.f(1)];
                         let (o, d) = cam.ray(u as f32 + jx, v as f32 + jy);
                         let (o, d) = (Vec3A::from_array(o), Vec3A::from_array(d));
-                        let l = trace(&scene, o, d, &rng, 64, 5);
+                        let l = trace(&scene, o, d, &rng, p.max_bounces, p.rr_depth);
                         for (s, x) in sum.iter_mut().zip(l.to_array()) {
                             *s += x as f64;
                         }
                     }
-                    let want = sum.map(|x| (x / 5.0) as f32);
+                    let want = sum.map(|x| (x / p.spp as f64) as f32);
                     assert_eq!(*px, want, "{sampler:?} {tracer:?} pixel {i}");
                 }
             }
