@@ -96,6 +96,14 @@ fn max3(a: vec3<f32>) -> f32 {
     return max(max(a.x, a.y), a.z);
 }
 
+// 2^-19 (16 f32 epsilons) of a face's product term: how far the recomputed
+// entry time may fall below the loop's t_min and still name the entered face
+// (a driver may fuse the multiply-adds differently at the two sites).
+// CPU twin: src/voxels/cast.rs `entry_slack`.
+fn entry_slack(product: f32) -> f32 {
+    return 1.9073486328125e-6 * abs(product);
+}
+
 fn bits3(m: vec3<bool>) -> u32 {
     return select(0u, 1u, m.x) | select(0u, 2u, m.y) | select(0u, 4u, m.z);
 }
@@ -296,17 +304,17 @@ fn esvo_cast(o: vec3<f32>, d: vec3<f32>) -> VoxHit {
     // Entry times of the voxel's faces (its mirrored high corner).
     let tent = (pos + scale_exp2) * coef - bias;
     let te = max3(tent);
+    var ea = 0;
+    if (tent.x == te) {
+        ea = 0;
+    } else if (tent.y == te) {
+        ea = 1;
+    } else if (tent.z == te) {
+        ea = 2;
+    }
     var entered = -1;
-    if (te >= t_min) {
-        if (tent.x == te) {
-            entered = 0;
-        } else if (tent.y == te) {
-            entered = 1;
-        } else if (tent.z == te) {
-            entered = 2;
-        } else {
-            entered = 0;
-        }
+    if (te >= t_min - entry_slack((pos[ea] + scale_exp2) * coef[ea])) {
+        entered = ea;
     }
     let level = u32(S_MAX - scale);
     var attr = 0xFFFFFFFFu;

@@ -519,6 +519,20 @@ pub fn cast_with<F: CastReal, A: Addressing>(
     finish::<F, A>(nodes, depth, o, d, p, &st, &stop)
 }
 
+/// How far below the loop's `t_min` the recomputed entry time `te` of the
+/// hit voxel may fall and still name the face the ray entered by: 16
+/// epsilons (2^-19 in f32) of the face's product term `(pos + s) coef`.
+/// Where `t_min` came from that same face, `te` equals it on the CPU. A GPU
+/// driver may fuse the multiply-adds of `t = x coef - bias` (and of `bias`
+/// itself) differently at the two sites, a rounding or two of terms of
+/// that size apart: on an NVIDIA H100 the old exact test left a zero normal
+/// on 11 of 2048 hard Menger rays. A ray that starts inside the voxel falls
+/// short by far more, unless it starts within rounding of the face (a tie).
+/// Twin: kernels/voxels.wgsl `entry_slack`.
+pub fn entry_slack<F: CastReal>(product: F) -> F {
+    F::of(16.0) * F::epsilon() * product.abs()
+}
+
 /// The hit at the voxel where the loop stopped (see the module doc for `t`,
 /// voxel and normal).
 #[inline(always)]
@@ -557,8 +571,8 @@ pub fn finish<F: CastReal, A: Addressing>(
     let te = max3(tent);
     let mut normal = [0i8; 3];
     let mut entered = None;
-    if te >= t_min {
-        let a = (0..3).find(|&a| tent[a] == te).unwrap_or(0);
+    let a = (0..3).find(|&a| tent[a] == te).unwrap_or(0);
+    if te >= t_min - entry_slack((pos[a] + scale_exp2) * coef[a]) {
         normal[a] = if dir[a] > F::zero() { -1 } else { 1 };
         entered = Some(a);
     }
@@ -682,6 +696,52 @@ mod tests {
                 );
             }
         }
+    }
+
+    /// The one-leaf stop of an axis ray entering a full root (its children
+    /// are leaves, so the loop stops at its first iteration), as the loop
+    /// builds it.
+    fn first_leaf_stop(nodes: &[u32], st: &Start<f32>) -> Stop<f32> {
+        Stop {
+            leaf: true,
+            pos: st.pos,
+            scale: S_MAX - 1,
+            scale_exp2: 0.5,
+            t_min: st.t_min,
+            parent: 0,
+            desc: nodes[0],
+            idx: st.idx,
+            contour_hit: None,
+            iters: 1,
+        }
+    }
+
+    #[test]
+    fn finish_names_the_entered_face_when_t_min_is_a_rounding_above_it() {
+        let t = tree(&Shape::Sphere { radius: 10.0 }, 4);
+        let p = CastParams::default();
+        let (o, d) = ([0.1f32, -0.3, -3.0], [0.0f32, 0.0, 1.0]);
+        let st = start(o, d, &p).unwrap();
+        let stop = first_leaf_stop(&t.nodes, &st);
+        let whole = cast::<f32>(&t.nodes, 4, o, d, &p);
+        let h = finish::<f32, Relative>(&t.nodes, 4, o, d, &p, &st, &stop);
+        assert_eq!((h.hit, h.t, h.normal), (whole.hit, whole.t, whole.normal));
+        assert_eq!(h.normal, [0, 0, -1]);
+        // A driver that fuses the loop's multiply-add and not finish's puts
+        // t_min a rounding above the recomputed entry time: same face.
+        for ulps in 1..=4u32 {
+            let up = f32::from_bits(stop.t_min.to_bits() + ulps);
+            let h =
+                finish::<f32, Relative>(&t.nodes, 4, o, d, &p, &st, &Stop { t_min: up, ..stop });
+            assert_eq!(h.normal, [0, 0, -1], "t_min {ulps} ulps above");
+        }
+        // A ray that starts inside the voxel: no entered face.
+        let inside = Stop {
+            t_min: stop.t_min + 1e-3,
+            ..stop
+        };
+        let h = finish::<f32, Relative>(&t.nodes, 4, o, d, &p, &st, &inside);
+        assert_eq!(h.normal, [0, 0, 0]);
     }
 
     #[test]
