@@ -8,20 +8,21 @@
 
 use crate::error::Result;
 use crate::gpu::voxels::GpuCast;
+use crate::gpu::GpuContext;
 use crate::rays::Rays;
 use crate::tensor::{Outputs, Tensor};
 
-use super::attributes::{leaf_normals, Attributes};
+use super::attributes::{leaf_normals, AttrForm, Attributes};
 use super::batch::Batch;
 use super::cast::{CastParams, CastReal};
 use super::contour::decode;
-use super::gpu::hits_from_gpu;
+use super::gpu::{attr_image_gpu, hits_from_gpu};
 use super::octree::Octree;
 use super::outputs::{attr_metrics, build_metrics, mesh_metrics, put_hits};
 use super::referee::referee;
 use super::referee_bounds::ball_entry;
 use super::referee_mesh::{check_triangles, check_voxels};
-use super::render::{cast_all, cast_all_contours, VoxelHits};
+use super::render::{attr_image, cast_all, cast_all_contours, VoxelHits};
 use super::shape::Shape;
 use super::through::Through;
 use super::voxelise::MeshVoxels;
@@ -116,8 +117,12 @@ pub fn contour_error<F: CastReal>(
 /// through the same structure `th`
 /// (with the kernel's iteration cap, so a capped ray is capped on both):
 /// the GPU's hits, the CPU's as `cpu_*`, `excused` / `not_excused` (see
-/// [`excused`]), `identical_frac` (scalar and metric), counters `rays`,
-/// `differ`, `excused`, `unexcused`, `gpu_capped`, `cpu_capped`; `rays`
+/// [`excused`]), `normal_not_excused` (also excusing normal ties, see
+/// [`normal_ties`]), `identical_frac` (scalar and metric), counters `rays`,
+/// `differ`, `excused`, `unexcused`, `normal_differ`, `normal_excused`,
+/// `gpu_capped`, `cpu_capped`; with `attrs`, the images shaded from the
+/// hit leaves' attributes, decoded on the GPU (`image`) and on the CPU
+/// (`cpu_image`); `rays`
 /// (N, 9) when `dump`.
 #[allow(clippy::too_many_arguments)]
 pub fn gpu_parity(
@@ -126,7 +131,7 @@ pub fn gpu_parity(
     b: &Batch<f32>,
     p: &CastParams,
     scene: (&Shape, u32),
-    margin: f64,
+    (margin, attrs): (f64, Option<(&Attributes, AttrForm)>),
     case: &str,
     dump: bool,
 ) -> Result<Outputs> {
@@ -139,17 +144,28 @@ pub fn gpu_parity(
     let n = gpu.hit.len();
     let (excused, differ) = excused(&gpu, &cpu, (&b.o, &b.d), scene, &p, margin, case);
     let nex = excused.iter().map(|&x| x as u64).sum::<u64>();
+    let (normal_ok, ndiffer) = normal_ties(&gpu, &cpu, (&b.o, &b.d), scene, &p, margin, case);
+    let nnex = normal_ok.iter().map(|&x| x as u64).sum::<u64>();
     let mut out = Outputs::default();
     out.counter("rays", n as u64)
         .counter("differ", differ as u64);
     out.counter("excused", nex)
         .counter("unexcused", differ as u64 - nex);
+    out.counter("normal_differ", ndiffer as u64)
+        .counter("normal_excused", nnex);
     out.counter("gpu_capped", gpu.capped)
         .counter("cpu_capped", cpu.capped);
     let identical = 1.0 - differ as f64 / n.max(1) as f64;
     out.metric("identical_frac", identical);
     out.tensor("identical_frac", Tensor::scalar(identical));
     let not_excused: Vec<u8> = excused.iter().map(|&x| 1 - x).collect();
+    let normal_not_excused: Vec<u8> = (excused.iter().zip(&normal_ok))
+        .map(|(&x, &y)| 1 - (x | y))
+        .collect();
+    out.tensor(
+        "normal_not_excused",
+        Tensor::from_shape_vec(&b.shape, normal_not_excused)?,
+    );
     out.tensor("excused", Tensor::from_shape_vec(&b.shape, excused)?);
     out.tensor(
         "not_excused",
@@ -165,6 +181,13 @@ pub fn gpu_parity(
         };
         out.tensor("rays", rays.to_tensor()?);
     }
+    if let Some((a, form)) = attrs {
+        let ix = |v| th.attr_index(v);
+        let gi = attr_image_gpu(GpuContext::get()?, &gpu, (a, form), ix)?;
+        out.tensor("image", Tensor::real3(&b.shape, &gi)?);
+        let ci = attr_image(&cpu, a, form, ix);
+        out.tensor("cpu_image", Tensor::real3(&b.shape, &ci)?);
+    }
     put_hits(&mut out, gpu, &b.shape, scene.1, false)?;
     let mut c = Outputs::default();
     put_hits(&mut c, cpu, &b.shape, scene.1, false)?;
@@ -172,6 +195,49 @@ pub fn gpu_parity(
         out.tensor(&format!("cpu_{k}"), v);
     }
     Ok(out)
+}
+
+/// Slack of a normal tie relative to the ray's coordinate magnitudes
+/// (`|o| + t |d|`): 2^-20, 8 f32 ulps. The cast's entry times carry a few
+/// ulps of those magnitudes, and which face of an edge is entered first
+/// flips with them (H100 against the CPU: entry-face gaps up to 8.7e-7 at
+/// t = 3, |o| = 3.5, where 2^-22 world units would excuse none).
+const NORMAL_TIE_REL: f64 = 1.0 / (1u64 << 20) as f64;
+
+/// Per ray: 1 where the GPU and CPU agree on the leaf but not on the normal
+/// and the referee, with `margin` widened by [`NORMAL_TIE_REL`] of the ray's
+/// coordinate magnitudes, flags the ray as a tie (it enters the voxel within
+/// rounding of an edge or corner, so either face is right), else 0;
+/// unexcused differences are logged. Also the number of such rays.
+fn normal_ties(
+    gpu: &VoxelHits<f32>,
+    cpu: &VoxelHits<f32>,
+    (o, d): (&[[f32; 3]], &[[f32; 3]]),
+    (shape, depth): (&Shape, u32),
+    p: &CastParams,
+    margin: f64,
+    case: &str,
+) -> (Vec<u8>, usize) {
+    let n = gpu.hit.len();
+    let differ: Vec<usize> = (0..n)
+        .filter(|&i| gpu.leaf[i] == cpu.leaf[i] && gpu.normal[i] != cpu.normal[i])
+        .collect();
+    let mut excused = vec![0u8; n];
+    let norm = |v: [f64; 3]| (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+    for &i in &differ {
+        let (oi, di) = (o[i].map(|x| x as f64), d[i].map(|x| x as f64));
+        let t = (cpu.t[i] as f64).max(0.0);
+        let m = margin + NORMAL_TIE_REL * (norm(oi) + t * norm(di));
+        let f = referee(shape, depth, oi, di, p.near, p.far, m);
+        excused[i] = (f.tie || f.near_tie) as u8;
+        if excused[i] == 0 {
+            eprintln!(
+                "{case}: ray {i} o={:?} d={:?}: gpu normal {:?} cpu normal {:?} (leaf {:?}, referee normal {:?})",
+                o[i], d[i], gpu.normal[i], cpu.normal[i], cpu.leaf[i], f.normal
+            );
+        }
+    }
+    (excused, differ.len())
 }
 
 /// Per ray: 1 where the GPU and CPU leaves differ and the referee flags the

@@ -56,7 +56,7 @@ ops! {
     "voxels.contour_error" Cpu contour_op []
         "t error of cubes vs contours against the analytic sphere (max, p99); per ray box_excess and slab_excess of contour hits";
     "voxels.gpu_parity" GpuF32 gpu_parity ["rays", "count", "seed", "ulp_margin"]
-        "GPU vs CPU f32 voxel cast on the same rays: both outputs, excused (referee ties / one-ulp near ties where they differ)";
+        "GPU vs CPU f32 voxel cast on the same rays: both outputs (and with scene attributes both attribute images, image / cpu_image), excused (referee ties / one-ulp near ties where leaves differ), normal_not_excused (also normal ties where normals differ)";
     "voxels.gpu_bench" GpuF32 gpu_bench ["count", "size", "seed"]
         "CPU per-ray, CPU packet and GPU casts of octree and DAG in one run, coherent (size^2 camera) and incoherent (count): Mrays/CPU-s, GPU Mrays/s, packet speedup, mean iterations, node bytes per ray";
     "voxels.attributes" Cpu attributes_op []
@@ -293,7 +293,9 @@ fn gpu_parity(ctx: &OpCtx) -> Result<Outputs> {
     let th = Through::pick(&tree, dag.as_ref(), cs.as_deref());
     let (cast, b, p) = gpu_run(ctx, &sc, th, true)?;
     let scene = (&sc.shape, sc.depth);
-    crate::voxels::checks::gpu_parity(th, &cast, &b, &p, scene, margin, ctx.case_id, ctx.dump)
+    let a = for_scene(&sc.shape, &tree, sc.attributes)?;
+    let at = (margin, a.as_ref().map(|a| (a, sc.attributes)));
+    crate::voxels::checks::gpu_parity(th, &cast, &b, &p, scene, at, ctx.case_id, ctx.dump)
 }
 
 fn gpu_bench(ctx: &OpCtx) -> Result<Outputs> {
