@@ -98,12 +98,15 @@ pub fn bind_group(
     })
 }
 
-/// Bytes read back, one vector per buffer asked for, and the seconds from
+/// Bytes read back, one vector per buffer asked for, the seconds from
 /// submit to the end of the readback copies (kernels + copies, without
-/// pipeline builds or uploads).
+/// pipeline builds or uploads), and, where the adapter has timestamp
+/// queries, the seconds on the GPU's clock from the start of the first
+/// pass to the end of the last (the kernels alone).
 pub struct Readback {
     pub bytes: Vec<Vec<u8>>,
     pub gpu_s: f64,
+    pub kernel_s: Option<f64>,
 }
 
 impl Readback {
@@ -144,14 +147,30 @@ pub fn run(
     let val = dev.push_error_scope(wgpu::ErrorFilter::Validation);
     let mut enc =
         dev.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some(label) });
-    for (p, plan) in passes.iter().zip(&plans) {
+    let live: Vec<usize> = (0..passes.len())
+        .filter(|&i| plans[i].groups_x != 0)
+        .collect();
+    let clock = (ctx.has_timestamps() && !live.is_empty()).then(|| Clock::new(ctx));
+    for (i, (p, plan)) in passes.iter().zip(&plans).enumerate() {
         if plan.groups_x == 0 {
             continue;
         }
         let bg = bind_group(ctx, p.label, p.pipeline, p.buffers);
+        // Only the first and the last live pass are timed (wgpu refuses
+        // timestamp writes with neither index set).
+        let (first, last) = (Some(&i) == live.first(), Some(&i) == live.last());
+        let timestamp_writes =
+            clock
+                .as_ref()
+                .filter(|_| first || last)
+                .map(|c| wgpu::ComputePassTimestampWrites {
+                    query_set: &c.queries,
+                    beginning_of_pass_write_index: first.then_some(0),
+                    end_of_pass_write_index: last.then_some(1),
+                });
         let mut cp = enc.begin_compute_pass(&wgpu::ComputePassDescriptor {
             label: Some(p.label),
-            timestamp_writes: None,
+            timestamp_writes,
         });
         cp.set_pipeline(p.pipeline);
         cp.set_bind_group(0, &bg, &[]);
@@ -170,9 +189,12 @@ pub fn run(
             s
         })
         .collect();
+    if let Some(c) = &clock {
+        c.resolve(&mut enc);
+    }
     let t = Instant::now();
     ctx.queue.submit([enc.finish()]);
-    for s in &staging {
+    for s in staging.iter().chain(clock.as_ref().map(|c| &c.staging)) {
         s.slice(..).map_async(wgpu::MapMode::Read, |_| {});
     }
     dev.poll(wgpu::PollType::wait_indefinitely())
@@ -194,5 +216,69 @@ pub fn run(
         drop(view);
         s.unmap();
     }
-    Ok(Readback { bytes, gpu_s })
+    let kernel_s = match &clock {
+        Some(c) => Some(c.seconds(ctx, label)?),
+        None => None,
+    };
+    Ok(Readback {
+        bytes,
+        gpu_s,
+        kernel_s,
+    })
+}
+
+/// Two GPU timestamps (start of a launch's first pass, end of its last),
+/// resolved into a buffer and copied to a mappable one.
+struct Clock {
+    queries: wgpu::QuerySet,
+    resolved: wgpu::Buffer,
+    staging: wgpu::Buffer,
+}
+
+impl Clock {
+    fn new(ctx: &GpuContext) -> Clock {
+        let dev = &ctx.device;
+        let buffer = |label, usage| {
+            dev.create_buffer(&wgpu::BufferDescriptor {
+                label: Some(label),
+                size: 2 * wgpu::QUERY_SIZE as u64,
+                usage,
+                mapped_at_creation: false,
+            })
+        };
+        Clock {
+            queries: dev.create_query_set(&wgpu::QuerySetDescriptor {
+                label: Some("launch clock"),
+                ty: wgpu::QueryType::Timestamp,
+                count: 2,
+            }),
+            resolved: buffer(
+                "launch clock resolved",
+                wgpu::BufferUsages::QUERY_RESOLVE | wgpu::BufferUsages::COPY_SRC,
+            ),
+            staging: buffer(
+                "launch clock readback",
+                wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+            ),
+        }
+    }
+
+    fn resolve(&self, enc: &mut wgpu::CommandEncoder) {
+        enc.resolve_query_set(&self.queries, 0..2, &self.resolved, 0);
+        enc.copy_buffer_to_buffer(&self.resolved, 0, &self.staging, 0, self.resolved.size());
+    }
+
+    /// Seconds between the two timestamps (after the submit's wait).
+    fn seconds(&self, ctx: &GpuContext, label: &str) -> Result<f64> {
+        let view = self
+            .staging
+            .slice(..)
+            .get_mapped_range()
+            .map_err(|e| Error::Gpu(format!("{label}: mapping the launch clock: {e}")))?;
+        let ticks: Vec<u64> = bytemuck::pod_collect_to_vec(&view);
+        drop(view);
+        self.staging.unmap();
+        let period_ns = ctx.queue.get_timestamp_period() as f64;
+        Ok(ticks[1].wrapping_sub(ticks[0]) as f64 * period_ns * 1e-9)
+    }
 }

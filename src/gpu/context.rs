@@ -197,7 +197,8 @@ impl GpuContext {
             })?;
         let info = adapter.get_info();
         let limits = adapter.limits();
-        let features = adapter.features() & wgpu::Features::PIPELINE_CACHE;
+        let features =
+            adapter.features() & (wgpu::Features::PIPELINE_CACHE | wgpu::Features::TIMESTAMP_QUERY);
         let desc = wgpu::DeviceDescriptor {
             label: Some("hotpath"),
             required_features: features,
@@ -233,6 +234,14 @@ impl GpuContext {
     /// Name, backend and driver of the adapter in use.
     pub fn summary(&self) -> AdapterSummary {
         AdapterSummary::of(&self.info)
+    }
+
+    /// Whether launches can be timed on the GPU's own clock (the adapter has
+    /// `TIMESTAMP_QUERY`; [`super::buffers::run`] then reports `kernel_s`).
+    pub fn has_timestamps(&self) -> bool {
+        self.device
+            .features()
+            .contains(wgpu::Features::TIMESTAMP_QUERY)
     }
 
     /// The pipeline cache, where the adapter supports one.

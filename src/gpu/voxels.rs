@@ -90,11 +90,13 @@ pub struct GpuCastParams {
 
 /// What a batch returned: per-ray results, the camera rays when asked for
 /// (`[ox, oy, oz, dx, dy, dz]` per ray), the GPU seconds (submit to
-/// readback) and the iteration cap the kernel ran with.
+/// readback), the kernels' seconds on the GPU clock (where the adapter has
+/// timestamps) and the iteration cap the kernel ran with.
 pub struct GpuCast {
     pub hits: Vec<GpuVoxelHit>,
     pub rays: Vec<[f32; 6]>,
     pub gpu_s: f64,
+    pub kernel_s: Option<f64>,
     pub max_iter: u32,
 }
 
@@ -287,6 +289,7 @@ impl<'c> GpuOctree<'c> {
             hits: rb.take(0, n)?,
             rays,
             gpu_s: rb.gpu_s,
+            kernel_s: rb.kernel_s,
             max_iter: vp.max_iter,
         })
     }
@@ -304,6 +307,7 @@ impl<'c> GpuOctree<'c> {
             hits: Vec::with_capacity(rays.len()),
             rays: Vec::new(),
             gpu_s: 0.0,
+            kernel_s: Some(0.0),
             max_iter: self.kernel_max_iter(p.max_iter),
         };
         for chunk in rays.chunks(batch_rays(self.ctx) as usize) {
@@ -328,6 +332,7 @@ impl<'c> GpuOctree<'c> {
             let rb = run(self.ctx, "cast_rays", &[pass], &[&hits])?;
             out.hits.extend(rb.take::<GpuVoxelHit>(0, m as usize)?);
             out.gpu_s += rb.gpu_s;
+            out.kernel_s = out.kernel_s.zip(rb.kernel_s).map(|(a, b)| a + b);
         }
         Ok(out)
     }

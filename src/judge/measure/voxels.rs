@@ -394,6 +394,12 @@ pub fn cpu_vs_gpu(
                 &format!("{sname}_gpu_{set}_mrays_per_s"),
                 m / gc.gpu_s.max(1e-12) / 1e6,
             );
+            if let Some(k) = gc.kernel_s {
+                out.metric(
+                    &format!("{sname}_gpu_{set}_kernel_mrays_per_s"),
+                    m / k.max(1e-12) / 1e6,
+                );
+            }
             out.metric(
                 &format!("{sname}_{set}_node_bytes_per_ray"),
                 4.0 * mean(gc.hits.iter().map(|h| h.loads() as f64)),

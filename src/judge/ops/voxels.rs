@@ -58,7 +58,7 @@ ops! {
     "voxels.gpu_parity" GpuF32 gpu_parity ["rays", "count", "seed", "ulp_margin"]
         "GPU vs CPU f32 voxel cast on the same rays: both outputs (and with scene attributes both attribute images, image / cpu_image), excused (referee ties / one-ulp near ties where leaves differ), normal_not_excused (also normal ties where normals differ)";
     "voxels.gpu_bench" GpuF32 gpu_bench ["count", "size", "seed"]
-        "CPU per-ray, CPU packet and GPU casts of octree and DAG in one run, coherent (size^2 camera) and incoherent (count): Mrays/CPU-s, GPU Mrays/s, packet speedup, mean iterations, node bytes per ray";
+        "CPU per-ray, CPU packet and GPU casts of octree and DAG in one run, coherent (size^2 camera; size 0: the scene's width x height) and incoherent (count): Mrays/CPU-s, GPU Mrays/s (submit to readback, and kernels alone on the GPU clock where the adapter has timestamps), packet speedup, mean iterations, node bytes per ray";
     "voxels.attributes" Cpu attributes_op []
         "plain and DXT per-leaf colour/normal: {plain,dxt}_colour_psnr_db, _normal_{mean,p99,max}_deg, _bytes_per_voxel";
     "voxels.mesh_referee" Cpu mesh_referee_op ["tri_stride", "leaf_stride", "margin"]
@@ -300,7 +300,8 @@ fn gpu_parity(ctx: &OpCtx) -> Result<Outputs> {
 
 fn gpu_bench(ctx: &OpCtx) -> Result<Outputs> {
     let sc = load(ctx)?;
-    let size = Some(ctx.param_or("size", 512)?);
+    // `size: 0`: the scene's own width x height (1920x1080 for the H100 goal).
+    let size = Some(ctx.param_or("size", 512)?).filter(|&s: &u32| s != 0);
     let (count, seed) = (
         ctx.param_or("count", 1 << 18)?,
         ctx.param_or("seed", ctx.seed)?,

@@ -1,0 +1,92 @@
+#!/usr/bin/env bash
+# Runs hpjudge on a lent real GPU (the tool library's `device` machine: an
+# NVIDIA H100 with no Rust and no registry). Build here first, then carry
+# the stripped binary and the Vulkan loader:
+#
+#   cargo build --release --bin hpjudge
+#   mkdir -p .dev && cp target/release/hpjudge .dev/ && strip .dev/hpjudge
+#   cp /usr/share/glmark2/models/bunny.obj .dev/      # the bunny cases
+#   (.gl/: the loader .debs the device README names; .dev and .gl are in
+#   .git/info/exclude)
+#   device run, carry [.gl, .dev]:  bash scripts/device_gpu.sh STAGE...
+#
+# Stages, in the order given:
+#   info    hpjudge info (the adapter must be the NVIDIA one)
+#   suite   the whole manifest with --require-gpu (default profile)
+#   perf:F  hpjudge perf --filter F (repeatable)
+#   render  hpjudge render of the Cornell box on the GPU at 512x512, 64 spp
+#   cases:F the GPU cases whose id contains F, with --dump-failing; the
+#           failing ones' tensors come back as $OUT/cases_F.tar.gz
+# Perf and info output lands in $OUT/results.tar.gz; the log is $OUT/log.txt; the last
+# lines printed are a summary (suite verdicts, perf metrics named by
+# HP_PERF_KEYS, a regex; default every metric).
+set -uo pipefail
+cd "$(dirname "$0")/.."
+: "${OUT:=/tmp/hp-device-out}"
+mkdir -p "$OUT"
+res=/tmp/hp-results
+rm -rf "$res" && mkdir -p "$res"
+exec > >(tee -a "$OUT/log.txt") 2>&1
+
+for f in .gl/*.deb; do dpkg -x "$f" /; done
+ldconfig
+export VK_DRIVER_FILES=/usr/local/nvidia/share/vulkan/icd.d/nvidia_icd.json
+export WGPU_BACKEND=vulkan XDG_RUNTIME_DIR=/tmp
+mkdir -p /usr/share/glmark2/models
+[ -f .dev/bunny.obj ] && cp .dev/bunny.obj /usr/share/glmark2/models/
+hpj=.dev/hpjudge
+nvidia-smi --query-gpu=name,driver_version,clocks.sm,clocks.mem,temperature.gpu --format=csv
+
+summary=()
+for stage in "$@"; do
+    t0=$(date +%s.%N)
+    case "$stage" in
+        info)
+            "$hpj" info | tee "$res/info.txt"
+            ;;
+        suite)
+            "$hpj" run TESTS/manifest.yaml --out "$res/suite" --require-gpu | tee "$res/suite.log"
+            summary+=("suite: $(tail -n 1 "$res/suite.log")")
+            grep -E "FAIL|ERROR" "$res/suite.log" | head -40
+            ;;
+        perf:*)
+            f="${stage#perf:}"
+            "$hpj" perf --filter "$f" --out "$res/perf_$f" --json >"$res/perf_$f.json"
+            python3 - "$res/perf_$f/perf.json" "${HP_PERF_KEYS:-.}" <<'EOF' | tee -a "$res/perf_summary.txt"
+import json, re, sys
+d = json.load(open(sys.argv[1]))
+keys = re.compile(sys.argv[2])
+for s in d.get("scenarios", []):
+    for k, v in sorted(s.get("metrics", {}).items()):
+        if keys.search(k):
+            med = v.get("median", v) if isinstance(v, dict) else v
+            print(f"{s.get('id')} {k} {med}")
+EOF
+            ;;
+        cases:*)
+            f="${stage#cases:}"
+            "$hpj" run TESTS/manifest.yaml --backend gpu --filter "$f" --dump-failing \
+                --out "/tmp/hp-cases/$f" --require-gpu | tee "$res/cases_$f.log"
+            summary+=("cases $f: $(tail -n 1 "$res/cases_$f.log")")
+            grep -E "^(FAIL|ERROR|TIMEOUT)" "$res/cases_$f.log" | head -40
+            failing=$(grep -E "^(FAIL|ERROR|TIMEOUT)" "$res/cases_$f.log" | awk '{print $2}' | sort -u)
+            if [ -n "$failing" ]; then
+                # shellcheck disable=SC2086
+                (cd "/tmp/hp-cases/$f" && tar -czf "$OUT/cases_$f.tar.gz" --exclude='*_key.npy' \
+                    --exclude='*iters.npy' scoreboard.json $failing)
+            fi
+            ;;
+        render)
+            "$hpj" render TESTS/scenes/cornell_box.yaml --backend gpu --set spp=64 --out "$res/render" \
+                2>&1 | tail -n 5
+            ;;
+        *)
+            echo "unknown stage $stage" >&2
+            ;;
+    esac
+    echo "== stage $stage: $(python3 -c "import sys; print(round($(date +%s.%N) - $t0, 1))") s"
+done
+tar -czf "$OUT/results.tar.gz" -C "$res" .
+echo "== summary"
+printf '%s\n' "${summary[@]}"
+[ -f "$res/perf_summary.txt" ] && wc -l "$res/perf_summary.txt"
