@@ -117,8 +117,8 @@ pub fn contour_error<F: CastReal>(
 /// through the same structure `th`
 /// (with the kernel's iteration cap, so a capped ray is capped on both):
 /// the GPU's hits, the CPU's as `cpu_*`, `excused` / `not_excused` (see
-/// [`excused`]), `normal_not_excused` (also excusing normal ties, see
-/// [`normal_ties`]), `identical_frac` (scalar and metric), counters `rays`,
+/// [`CastPair::leaf_ties`]), `normal_not_excused` (also excusing normal
+/// ties, see [`CastPair::normal_ties`]), `identical_frac` (scalar and metric), counters `rays`,
 /// `differ`, `excused`, `unexcused`, `normal_differ`, `normal_excused`,
 /// `gpu_capped`, `cpu_capped`; with `attrs`, the images shaded from the
 /// hit leaves' attributes, decoded on the GPU (`image`) and on the CPU
@@ -142,9 +142,18 @@ pub fn gpu_parity(
     let cpu = th.cast_all::<f32>(&b.o, &b.d, &p);
     let gpu = hits_from_gpu(&g.hits);
     let n = gpu.hit.len();
-    let (excused, differ) = excused(&gpu, &cpu, (&b.o, &b.d), scene, &p, margin, case);
+    let pair = CastPair {
+        gpu: &gpu,
+        cpu: &cpu,
+        o: &b.o,
+        d: &b.d,
+        scene,
+        p: &p,
+        case,
+    };
+    let (excused, differ) = pair.leaf_ties(margin);
     let nex = excused.iter().map(|&x| x as u64).sum::<u64>();
-    let (normal_ok, ndiffer) = normal_ties(&gpu, &cpu, (&b.o, &b.d), scene, &p, margin, case);
+    let (normal_ok, ndiffer) = pair.normal_ties(margin);
     let nnex = normal_ok.iter().map(|&x| x as u64).sum::<u64>();
     let mut out = Outputs::default();
     out.counter("rays", n as u64)
@@ -204,70 +213,68 @@ pub fn gpu_parity(
 /// t = 3, |o| = 3.5, where 2^-22 world units would excuse none).
 const NORMAL_TIE_REL: f64 = 1.0 / (1u64 << 20) as f64;
 
-/// Per ray: 1 where the GPU and CPU agree on the leaf but not on the normal
-/// and the referee, with `margin` widened by [`NORMAL_TIE_REL`] of the ray's
-/// coordinate magnitudes, flags the ray as a tie (it enters the voxel within
-/// rounding of an edge or corner, so either face is right), else 0;
-/// unexcused differences are logged. Also the number of such rays.
-fn normal_ties(
-    gpu: &VoxelHits<f32>,
-    cpu: &VoxelHits<f32>,
-    (o, d): (&[[f32; 3]], &[[f32; 3]]),
-    (shape, depth): (&Shape, u32),
-    p: &CastParams,
-    margin: f64,
-    case: &str,
-) -> (Vec<u8>, usize) {
-    let n = gpu.hit.len();
-    let differ: Vec<usize> = (0..n)
-        .filter(|&i| gpu.leaf[i] == cpu.leaf[i] && gpu.normal[i] != cpu.normal[i])
-        .collect();
-    let mut excused = vec![0u8; n];
-    let norm = |v: [f64; 3]| (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
-    for &i in &differ {
-        let (oi, di) = (o[i].map(|x| x as f64), d[i].map(|x| x as f64));
-        let t = (cpu.t[i] as f64).max(0.0);
-        let m = margin + NORMAL_TIE_REL * (norm(oi) + t * norm(di));
-        let f = referee(shape, depth, oi, di, p.near, p.far, m);
-        excused[i] = (f.tie || f.near_tie) as u8;
-        if excused[i] == 0 {
-            eprintln!(
-                "{case}: ray {i} o={:?} d={:?}: gpu normal {:?} cpu normal {:?} (leaf {:?}, referee normal {:?})",
-                o[i], d[i], gpu.normal[i], cpu.normal[i], cpu.leaf[i], f.normal
-            );
-        }
-    }
-    (excused, differ.len())
+/// The GPU and CPU casts of one batch and what the referee needs to judge
+/// their differences.
+struct CastPair<'a> {
+    gpu: &'a VoxelHits<f32>,
+    cpu: &'a VoxelHits<f32>,
+    o: &'a [[f32; 3]],
+    d: &'a [[f32; 3]],
+    scene: (&'a Shape, u32),
+    p: &'a CastParams,
+    case: &'a str,
 }
 
-/// Per ray: 1 where the GPU and CPU leaves differ and the referee flags the
-/// ray as a tie or as within `margin` world units of a voxel boundary (an
-/// excused difference), else 0; unexcused differences are logged. Also the
-/// number of rays that differ.
-fn excused(
-    gpu: &VoxelHits<f32>,
-    cpu: &VoxelHits<f32>,
-    (o, d): (&[[f32; 3]], &[[f32; 3]]),
-    (shape, depth): (&Shape, u32),
-    p: &CastParams,
-    margin: f64,
-    case: &str,
-) -> (Vec<u8>, usize) {
-    let n = gpu.hit.len();
-    let differ: Vec<usize> = (0..n).filter(|&i| gpu.leaf[i] != cpu.leaf[i]).collect();
-    let mut excused = vec![0u8; n];
-    for &i in &differ {
-        let w = |v: [f32; 3]| v.map(|x| x as f64);
-        let f = referee(shape, depth, w(o[i]), w(d[i]), p.near, p.far, margin);
-        excused[i] = (f.tie || f.near_tie) as u8;
-        if excused[i] == 0 {
-            eprintln!(
-                "{case}: ray {i} o={:?} d={:?}: gpu leaf {:?} cpu leaf {:?} (referee {:?})",
-                o[i], d[i], gpu.leaf[i], cpu.leaf[i], f.voxel
-            );
+impl CastPair<'_> {
+    /// Per ray: 1 where `differs(i)` and the referee, with margin
+    /// `margin(i)` world units, flags ray `i` as a tie or near tie (an
+    /// excused difference), else 0; unexcused differences are logged. Also
+    /// the number of rays that differ.
+    fn excuse(
+        &self,
+        differs: impl Fn(usize) -> bool,
+        margin: impl Fn(usize) -> f64,
+    ) -> (Vec<u8>, usize) {
+        let (g, c) = (self.gpu, self.cpu);
+        let differ: Vec<usize> = (0..g.hit.len()).filter(|&i| differs(i)).collect();
+        let mut excused = vec![0u8; g.hit.len()];
+        for &i in &differ {
+            let (o, d) = (self.o[i].map(|x| x as f64), self.d[i].map(|x| x as f64));
+            let (shape, depth) = self.scene;
+            let f = referee(shape, depth, o, d, self.p.near, self.p.far, margin(i));
+            excused[i] = (f.tie || f.near_tie) as u8;
+            if excused[i] == 0 {
+                eprintln!(
+                    "{}: ray {i} o={o:?} d={d:?}: gpu leaf {:?} normal {:?}, cpu leaf {:?} normal {:?} (referee {:?} {:?})",
+                    self.case, g.leaf[i], g.normal[i], c.leaf[i], c.normal[i], f.voxel, f.normal
+                );
+            }
         }
+        (excused, differ.len())
     }
-    (excused, differ.len())
+
+    /// [`Self::excuse`] where the leaves differ, with the referee's margin:
+    /// a tie, or within `margin` world units of a voxel boundary.
+    fn leaf_ties(&self, margin: f64) -> (Vec<u8>, usize) {
+        let (g, c) = (self.gpu, self.cpu);
+        self.excuse(|i| g.leaf[i] != c.leaf[i], |_| margin)
+    }
+
+    /// [`Self::excuse`] where the leaves agree but the normals do not, the
+    /// margin widened by [`NORMAL_TIE_REL`] of the ray's coordinate
+    /// magnitudes: the ray enters the voxel within rounding of an edge or
+    /// corner, so either face is right.
+    fn normal_ties(&self, margin: f64) -> (Vec<u8>, usize) {
+        let (g, c) = (self.gpu, self.cpu);
+        let norm = |v: [f32; 3]| v.map(|x| x as f64 * x as f64).iter().sum::<f64>().sqrt();
+        self.excuse(
+            |i| g.leaf[i] == c.leaf[i] && g.normal[i] != c.normal[i],
+            |i| {
+                let t = (c.t[i] as f64).max(0.0);
+                margin + NORMAL_TIE_REL * (norm(self.o[i]) + t * norm(self.d[i]))
+            },
+        )
+    }
 }
 
 /// Plain and DXT attributes of `tree`'s leaves built from `shape`'s normals
@@ -296,4 +303,45 @@ pub fn mesh_referee(
     mesh_metrics(&mut out, m, &tc, &vc);
     build_metrics(&mut out, tree);
     out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn hits(normals: &[[f32; 3]], ts: &[f32]) -> VoxelHits<f32> {
+        VoxelHits {
+            hit: vec![1; normals.len()],
+            t: ts.to_vec(),
+            leaf: vec![[0, 0, 8]; normals.len()],
+            normal: normals.to_vec(),
+            iters: vec![1; normals.len()],
+            capped: 0,
+        }
+    }
+
+    #[test]
+    fn normal_differences_are_excused_at_edges_only() {
+        // A solid box; ray 0 meets it exactly on the edge x = y = -1, ray 1
+        // in the middle of the face x = -1: both casts agree on the leaf,
+        // not on the normal.
+        let shape = Shape::Sphere { radius: 10.0 };
+        let s = std::f32::consts::FRAC_1_SQRT_2;
+        let o = [[-3.0, -3.0, 0.1], [-3.0, 0.1, 0.1]];
+        let d = [[s, s, 0.0], [1.0, 0.0, 0.0]];
+        let ts = [2.0 * std::f32::consts::SQRT_2, 2.0];
+        let gpu = hits(&[[-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]], &ts);
+        let cpu = hits(&[[0.0, -1.0, 0.0], [-1.0, 0.0, 0.0]], &ts);
+        let pair = CastPair {
+            gpu: &gpu,
+            cpu: &cpu,
+            o: &o,
+            d: &d,
+            scene: (&shape, 4),
+            p: &CastParams::default(),
+            case: "test",
+        };
+        assert_eq!(pair.leaf_ties(2f64.powi(-22)), (vec![0, 0], 0));
+        assert_eq!(pair.normal_ties(2f64.powi(-22)), (vec![1, 0], 2));
+    }
 }
