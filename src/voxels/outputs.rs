@@ -215,8 +215,10 @@ impl<F: Real> Batch<F> {
 /// A GPU cast of `b` as [`Batch::cast_outputs`] (the kernel's `gpu_s` as
 /// `cast_s`; with `attrs` the image shaded from the hit leaves' attributes
 /// decoded on the GPU, [`attr_image_gpu`], through `th`'s leaf numbering),
-/// plus metric `wall_s` (`wall`, submit to readback with the upload) and
-/// counter `kernel_max_iter`.
+/// plus metric `wall_s` (`wall`, submit to readback with the upload),
+/// counter `kernel_max_iter` and, where the adapter has timestamp queries,
+/// metric `kernel_s` (the cast on the GPU's clock) and scalar
+/// `kernel_share` (`kernel_s` over submit to readback).
 pub fn gpu_cast_outputs(
     cast: &GpuCast,
     b: Batch<f32>,
@@ -226,6 +228,12 @@ pub fn gpu_cast_outputs(
 ) -> Result<()> {
     out.metric("wall_s", wall)
         .counter("kernel_max_iter", cast.max_iter as u64);
+    if let Some(k) = cast.kernel_s {
+        // The kernels' share of submit-to-readback: in (0, 1] when the
+        // timestamps bracket the right passes.
+        out.metric("kernel_s", k);
+        out.tensor("kernel_share", Tensor::scalar(k / cast.gpu_s.max(1e-12)));
+    }
     let hits = cast.hits.iter().filter(|h| h.hit()).count() as u64;
     let h = hits_from_gpu(&cast.hits);
     let img = match attrs {
