@@ -24,6 +24,7 @@ pub mod fused;
 pub mod fused_lanes;
 pub mod gpu;
 pub mod grad_outputs;
+pub mod hash_kinks;
 pub mod integrate;
 pub mod loss;
 pub mod occupancy;

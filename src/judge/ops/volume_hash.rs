@@ -15,6 +15,7 @@ use crate::volume::diff::{f_diff, Grads};
 use crate::volume::field::hash::{HashMlp, HashMlpDesc};
 use crate::volume::field::FieldDesc;
 use crate::volume::grad_outputs::hash_outputs;
+use crate::volume::hash_kinks::dhash_smooth;
 use crate::volume::referee::hash_probes as referee;
 use crate::volume::VolumeParams;
 
@@ -27,8 +28,8 @@ ops! {
         "dparams (every parameter) and dx of sum_points g . (sigma, rgb), ours";
     "volume.hash_mlp_grad_fd" Cpu op_mlp_grad_fd ["points", "seed", "nodes"]
         "the same by central differences of the f64 referee";
-    "volume.hash_grad" CpuGpuF32 op_grad ["probes", "w_seed", "chain", "reduce"]
-        "f_diff dhash at seeded parameter probes (dhash_probe), all dhash, dcam; params chain, reduce";
+    "volume.hash_grad" CpuGpuF32 op_grad ["probes", "w_seed", "chain", "reduce", "kink_margin"]
+        "f_diff dhash at seeded parameter probes (dhash_probe), all dhash, dcam; params chain, reduce; on the CPU also dhash_smooth (0 on table values a sample within params.kink_margin of a ReLU kink touches) and counters kink_samples, kink_params";
     "volume.hash_grad_fd" Cpu op_grad_fd ["probes", "w_seed", "chain", "reduce", "h"]
         "central differences of the f64 fused render loss at the same probes";
     "volume.hash_refusals" Cpu op_refusals ["scenes", "good"]
@@ -106,8 +107,27 @@ fn grad_in<F: Real>(ctx: &OpCtx) -> Result<Outputs> {
         None,
         &ctx.budget,
     )?;
-    grad_tensors(g, &idx)
+    let mut out = grad_tensors(g, &idx)?;
+    let margin: f64 = ctx.param_or("kink_margin", KINK_MARGIN)?;
+    if !(margin >= 0.0 && margin.is_finite()) {
+        return Err(ctx.bad("kink_margin", "must be finite and >= 0"));
+    }
+    let (smooth, kinks) = dhash_smooth(&cam, &gen, &p, &d, margin, &ctx.budget)?;
+    out.counter("kink_samples", kinks).counter(
+        "kink_params",
+        smooth.iter().filter(|&&v| v == 0).count() as u64,
+    );
+    out.tensor(
+        "dhash_smooth",
+        Tensor::from_shape_vec(&[smooth.len()], smooth)?,
+    );
+    Ok(out)
 }
+
+/// Default `kink_margin`: 4e-6 of a pre-activation's terms, about six f32
+/// ulps of the sample position (one ulp of x moved the H100's kink sample
+/// by 6.3e-7 of its terms).
+const KINK_MARGIN: f64 = 4e-6;
 
 /// dhash_probe, dhash, dcam and time_s of a backward pass.
 fn grad_tensors<F: Real>(g: Grads<F>, idx: &[usize]) -> Result<Outputs> {

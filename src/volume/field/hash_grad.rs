@@ -8,7 +8,7 @@
 
 use crate::real::Real;
 
-use super::hash::{sigmoid, DensityAct, HashMlp, MAX_HIDDEN, MAX_WIDTH};
+use super::hash::{sigmoid, Corners, DensityAct, HashMlp, MAX_HIDDEN, MAX_WIDTH};
 
 impl<F: Real> HashMlp<F> {
     /// Back-propagates `g = dL/d(sigma, rgb)` at `x`: adds `dL/dparams`
@@ -120,6 +120,51 @@ impl<F: Real> HashMlp<F> {
     }
 }
 
+impl<F: Real> HashMlp<F> {
+    /// Whether the network sits within `margin` of a ReLU kink at `x`: a
+    /// hidden pre-activation (or, with `relu` density, the density output)
+    /// within `margin` times the sum of its terms' magnitudes of 0. There
+    /// the backward takes one side of a jump, and a backend whose sample
+    /// position differs by an ulp may take the other: an NVIDIA H100 put
+    /// z = +1.165e-6 (6.7e-7 of its terms) below 0 on one sample of
+    /// vol_hash_init.yaml and so dropped that sample's whole gradient
+    /// through the unit from every table value it touches. Returns the
+    /// point's corners (the table rows whose gradients the kink moves).
+    #[allow(clippy::needless_range_loop)] // index loops mirror the forward's order
+    pub fn near_kink(&self, x: [F; 3], margin: F) -> Option<Corners<F>> {
+        let c = self.corners(x);
+        let mut h = [F::zero(); MAX_WIDTH];
+        self.encode(&c, &mut h);
+        let mut z = [[F::zero(); MAX_WIDTH]; MAX_HIDDEN + 1];
+        self.mlp(&h, &mut z);
+        let nl = self.layers.len();
+        for (q, layer) in self.layers.iter().enumerate() {
+            let last = q + 1 == nl;
+            let units = match (last, self.density) {
+                (false, _) => layer.out,
+                (true, DensityAct::Relu) => 1,
+                (true, DensityAct::Softplus) => 0,
+            };
+            for o in 0..units {
+                let row = &layer.w[o * layer.inp..(o + 1) * layer.inp];
+                let mut mag = layer.b[o].abs();
+                for (k, w) in row.iter().enumerate() {
+                    let a = if q == 0 {
+                        h[k]
+                    } else {
+                        super::fmax(z[q - 1][k], F::zero())
+                    };
+                    mag += (*w * a).abs();
+                }
+                if z[q][o].abs() <= margin * mag {
+                    return Some(c);
+                }
+            }
+        }
+        None
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::super::hash::{DensityAct, HashConfig, HashMlp, HashMlpDesc};
@@ -138,6 +183,25 @@ mod tests {
     fn loss(d: &HashMlpDesc, x: [f64; 3], g: [f64; 4]) -> f64 {
         let (s, c) = HashMlp::<f64>::from_desc(d).query(x);
         g[0] * s + g[1] * c[0] + g[2] * c[1] + g[3] * c[2]
+    }
+
+    #[test]
+    fn near_kink_flags_a_point_whose_hidden_unit_is_at_zero() {
+        let d = desc(DensityAct::Softplus);
+        let mut m: HashMlp<f64> = HashMlp::from_desc(&d);
+        let x = [0.31, -0.47, 0.12];
+        assert!(m.near_kink(x, 1e-6).is_none());
+        // Move unit 3's bias so its pre-activation at x is exactly 0.
+        let mut z = [[0.0; super::MAX_WIDTH]; super::MAX_HIDDEN + 1];
+        let mut h = [0.0; super::MAX_WIDTH];
+        m.encode(&m.corners(x), &mut h);
+        m.mlp(&h, &mut z);
+        m.layers[0].b[3] -= z[0][3];
+        let c = m.near_kink(x, 1e-6).expect("unit 3 sits on its kink");
+        assert_eq!(c.rows, m.corners(x).rows);
+        // Unit 3 moved 1e-3 of its terms' magnitudes off the kink: not flagged.
+        m.layers[0].b[3] += 1e-3;
+        assert!(m.near_kink(x, 1e-6).is_none());
     }
 
     #[test]
