@@ -100,9 +100,9 @@ pub fn bind_group(
 
 /// Bytes read back, one vector per buffer asked for, the seconds from
 /// submit to the end of the readback copies (kernels + copies, without
-/// pipeline builds or uploads), and, where the adapter has timestamp
-/// queries, the seconds on the GPU's clock from the start of the first
-/// pass to the end of the last (the kernels alone).
+/// pipeline builds or uploads), and, for [`run_timed`] where the adapter
+/// has timestamp queries, the seconds on the GPU's clock from the start of
+/// the first pass to the end of the last (the kernels alone).
 pub struct Readback {
     pub bytes: Vec<Vec<u8>>,
     pub gpu_s: f64,
@@ -138,6 +138,28 @@ pub fn run(
     passes: &[Pass],
     read: &[&wgpu::Buffer],
 ) -> Result<Readback> {
+    launch(ctx, label, passes, read, false)
+}
+
+/// [`run`], also timing the passes on the GPU's clock where the adapter has
+/// timestamp queries (`Readback::kernel_s`; a query set and two small
+/// buffers more per launch, so only the launches that report it ask).
+pub fn run_timed(
+    ctx: &GpuContext,
+    label: &str,
+    passes: &[Pass],
+    read: &[&wgpu::Buffer],
+) -> Result<Readback> {
+    launch(ctx, label, passes, read, true)
+}
+
+fn launch(
+    ctx: &GpuContext,
+    label: &str,
+    passes: &[Pass],
+    read: &[&wgpu::Buffer],
+    timed: bool,
+) -> Result<Readback> {
     let dev = &ctx.device;
     let plans = passes
         .iter()
@@ -150,7 +172,7 @@ pub fn run(
     let live: Vec<usize> = (0..passes.len())
         .filter(|&i| plans[i].groups_x != 0)
         .collect();
-    let clock = (ctx.has_timestamps() && !live.is_empty()).then(|| Clock::new(ctx));
+    let clock = (timed && ctx.has_timestamps() && !live.is_empty()).then(|| Clock::new(ctx));
     for (i, (p, plan)) in passes.iter().zip(&plans).enumerate() {
         if plan.groups_x == 0 {
             continue;

@@ -237,7 +237,7 @@ impl GpuContext {
     }
 
     /// Whether launches can be timed on the GPU's own clock (the adapter has
-    /// `TIMESTAMP_QUERY`; [`super::buffers::run`] then reports `kernel_s`).
+    /// `TIMESTAMP_QUERY`; [`super::buffers::run_timed`] then reports `kernel_s`).
     pub fn has_timestamps(&self) -> bool {
         self.device
             .features()

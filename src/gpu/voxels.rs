@@ -9,7 +9,7 @@
 
 use bytemuck::{Pod, Zeroable};
 
-use super::buffers::{run, storage_in, storage_out, uniform, Pass};
+use super::buffers::{run_timed, storage_in, storage_out, uniform, Pass};
 use super::context::GpuContext;
 use super::kernels::pipeline_with;
 use super::rays::RayParams;
@@ -278,7 +278,7 @@ impl<'c> GpuOctree<'c> {
         } else {
             vec![&hits]
         };
-        let rb = run(self.ctx, "cast_camera", &[pass], &read)?;
+        let rb = run_timed(self.ctx, "cast_camera", &[pass], &read)?;
         let n = n as usize;
         let rays = if keep_rays {
             rb.take::<[f32; 6]>(1, n)?
@@ -329,7 +329,7 @@ impl<'c> GpuOctree<'c> {
                 n: m,
                 wg: 64,
             };
-            let rb = run(self.ctx, "cast_rays", &[pass], &[&hits])?;
+            let rb = run_timed(self.ctx, "cast_rays", &[pass], &[&hits])?;
             out.hits.extend(rb.take::<GpuVoxelHit>(0, m as usize)?);
             out.gpu_s += rb.gpu_s;
             out.kernel_s = out.kernel_s.zip(rb.kernel_s).map(|(a, b)| a + b);
