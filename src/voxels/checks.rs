@@ -210,7 +210,7 @@ pub fn gpu_parity(
 /// (`|o| + t |d|`): 2^-20, 8 f32 ulps. The cast's entry times carry a few
 /// ulps of those magnitudes, and which face of an edge is entered first
 /// flips with them (H100 against the CPU: entry-face gaps up to 8.7e-7 at
-/// t = 3, |o| = 3.5, where 2^-22 world units would excuse none).
+/// t = 3, |o| = 3.5, which a margin of 2^-22 world units would not excuse).
 const NORMAL_TIE_REL: f64 = 1.0 / (1u64 << 20) as f64;
 
 /// The GPU and CPU casts of one batch and what the referee needs to judge
