@@ -7,12 +7,41 @@
 
 use crate::budget::MemBudget;
 use crate::camera::Camera;
-use crate::error::Result;
+use crate::error::{Error, Result};
 use crate::rays::{f_ray, RayGen};
+use crate::tensor::{Outputs, Tensor};
 
 use super::field::hash::{HashMlp, HashMlpDesc};
 use super::sample::f_samp;
 use super::{prepare, VolumeParams};
+
+/// Default `kink_margin`: 4e-6 of a pre-activation's terms, about six f32
+/// ulps of the sample position (one ulp of x moved the H100's kink sample
+/// by 6.3e-7 of its terms).
+pub const KINK_MARGIN: f64 = 4e-6;
+
+/// [`dhash_smooth`] as outputs: tensor `dhash_smooth`, counters
+/// `kink_samples` and `kink_params` (table values left out).
+pub fn smooth_outputs(
+    (cam, gen, params): (&Camera, &RayGen, &VolumeParams),
+    desc: &HashMlpDesc,
+    margin: f64,
+    budget: &MemBudget,
+    out: &mut Outputs,
+) -> Result<()> {
+    if !(margin >= 0.0 && margin.is_finite()) {
+        return Err(Error::invalid("kink_margin", "must be finite and >= 0"));
+    }
+    let (smooth, kinks) = dhash_smooth(cam, gen, params, desc, margin, budget)?;
+    let left_out = smooth.iter().filter(|&&v| v == 0).count() as u64;
+    out.counter("kink_samples", kinks)
+        .counter("kink_params", left_out);
+    out.tensor(
+        "dhash_smooth",
+        Tensor::from_shape_vec(&[smooth.len()], smooth)?,
+    );
+    Ok(())
+}
 
 /// Per parameter of `desc` (flat order): 1 where no lattice sample of the
 /// f64 render of `params` through `cam` / `gen` within `margin` of a kink

@@ -15,7 +15,7 @@ use crate::volume::diff::{f_diff, Grads};
 use crate::volume::field::hash::{HashMlp, HashMlpDesc};
 use crate::volume::field::FieldDesc;
 use crate::volume::grad_outputs::hash_outputs;
-use crate::volume::hash_kinks::dhash_smooth;
+use crate::volume::hash_kinks::{smooth_outputs, KINK_MARGIN};
 use crate::volume::referee::hash_probes as referee;
 use crate::volume::VolumeParams;
 
@@ -108,26 +108,10 @@ fn grad_in<F: Real>(ctx: &OpCtx) -> Result<Outputs> {
         &ctx.budget,
     )?;
     let mut out = grad_tensors(g, &idx)?;
-    let margin: f64 = ctx.param_or("kink_margin", KINK_MARGIN)?;
-    if !(margin >= 0.0 && margin.is_finite()) {
-        return Err(ctx.bad("kink_margin", "must be finite and >= 0"));
-    }
-    let (smooth, kinks) = dhash_smooth(&cam, &gen, &p, &d, margin, &ctx.budget)?;
-    out.counter("kink_samples", kinks).counter(
-        "kink_params",
-        smooth.iter().filter(|&&v| v == 0).count() as u64,
-    );
-    out.tensor(
-        "dhash_smooth",
-        Tensor::from_shape_vec(&[smooth.len()], smooth)?,
-    );
+    let margin = ctx.param_or("kink_margin", KINK_MARGIN)?;
+    smooth_outputs((&cam, &gen, &p), &d, margin, &ctx.budget, &mut out)?;
     Ok(out)
 }
-
-/// Default `kink_margin`: 4e-6 of a pre-activation's terms, about six f32
-/// ulps of the sample position (one ulp of x moved the H100's kink sample
-/// by 6.3e-7 of its terms).
-const KINK_MARGIN: f64 = 4e-6;
 
 /// dhash_probe, dhash, dcam and time_s of a backward pass.
 fn grad_tensors<F: Real>(g: Grads<F>, idx: &[usize]) -> Result<Outputs> {
