@@ -536,7 +536,8 @@ fn trace(o_in: vec3<f32>, d_in: vec3<f32>, key: Rng) -> vec3<f32> {
         bounces += 1u;
         if (bounces >= P.rr_depth) {
             let be = beta * eta2;
-            let q = min(max(be.x, max(be.y, be.z)), 0.95);
+            // CPU twin: integrator.rs `survival` (RR_SCALE 3, RR_CAP 0.95).
+            let q = min(3.0 * max(be.x, max(be.y, be.z)), 0.95);
             if (!(rnd(key, base + DIM_ROULETTE) < q)) {
                 break;
             }

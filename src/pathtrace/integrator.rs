@@ -19,8 +19,12 @@
 //! depth 0; a vertex scatters (and samples lights) only while
 //! `k < max_bounces`, so `max_bounces = 1` is direct lighting. After the
 //! bounce that makes `k >= rr_depth`, the path survives with probability
-//! `q = min(max_channel(beta * eta^2), 0.95)` and `beta /= q` (unbiased;
-//! `eta^2` undoes the radiance scaling of refraction as Mitsuba 3 does).
+//! `q = min(3 max_channel(beta * eta^2), 0.95)` ([`survival`]) and
+//! `beta /= q` (unbiased for any `q` in (0, 1]; `eta^2` undoes the radiance
+//! scaling of refraction as Mitsuba 3 does). Mitsuba's rule has no factor 3;
+//! on the Cornell box it ends most paths at `rr_depth` (throughput about
+//! 0.2 there) and the survivors' weight of 5 was a fifth of the 64-spp
+//! variance (docs/PERF.md, issue 13, ninth session).
 //!
 //! Random numbers: `rand(seed, pixel, sample, dim)` (SCENES.md) with the
 //! dimensions laid out in [`dims`], so a render is bit-identical across runs
@@ -246,6 +250,19 @@ pub struct Image {
     pub nonfinite: u64,
 }
 
+/// Russian roulette's survival probability for a path whose throughput
+/// (times `eta^2`) has largest channel `m`: `min(RR_SCALE m, RR_CAP)`.
+#[inline(always)]
+pub fn survival(m: f32) -> f32 {
+    (RR_SCALE * m).min(RR_CAP)
+}
+
+/// How many times its throughput a path's survival probability is.
+pub const RR_SCALE: f32 = 3.0;
+
+/// The highest survival probability: every path past `rr_depth` may end.
+pub const RR_CAP: f32 = 0.95;
+
 /// Power heuristic (beta = 2) weight of the strategy with density `a`.
 #[inline]
 fn power(a: f32, b: f32) -> f32 {
@@ -425,7 +442,7 @@ impl PathState {
         self.o = spawn_origin(v.p, v.n, self.d);
         self.bounces += 1;
         if self.bounces >= rr_depth {
-            let q = (self.beta * self.eta2).max_element().min(0.95);
+            let q = survival((self.beta * self.eta2).max_element());
             let u = rng.f(base + dims::ROULETTE);
             if u.partial_cmp(&q) != Some(std::cmp::Ordering::Less) {
                 return false;
@@ -656,6 +673,15 @@ mod tests {
             tracer: Tracer::Wavefront,
             sampler: Sampler::Independent,
         }
+    }
+
+    #[test]
+    fn survival_is_three_times_the_largest_channel_below_the_cap() {
+        assert_eq!(survival(0.0), 0.0);
+        assert_eq!(survival(0.2), 3.0 * 0.2);
+        assert_eq!(survival(0.3), 3.0 * 0.3);
+        assert_eq!(survival(0.5), 0.95);
+        assert_eq!(survival(4.0), 0.95);
     }
 
     #[test]

@@ -19,7 +19,7 @@
 use glam::Vec3A;
 
 use super::bsdf8::{self, Frame8, Mat8, GLASS, LIGHT};
-use super::integrator::Scene;
+use super::integrator::{Scene, RR_CAP, RR_SCALE};
 use super::lanes::{Column, F8, LANES, M8, U8, V8};
 use super::sampler::{dims, PathRng, Rng8, Sampler};
 use super::shapes::{Quad, Shape, OFFSET_REL};
@@ -423,7 +423,9 @@ fn run<const AVX2: bool, F: Fn(usize) -> (Vec3A, Vec3A, PathRng)>(
         s.o = go.select_v(spawn(p, n, d), s.o);
         s.bounces = go.select_u(s.bounces + U8::splat(1), s.bounces);
         let rr = go & s.bounces.ge(U8::splat(rr_depth));
-        let q = (s.beta.scale(s.eta2)).max_element().min(F8::splat(0.95));
+        // `integrator::survival`, lane by lane.
+        let m = s.beta.scale(s.eta2).max_element();
+        let q = (F8::splat(RR_SCALE) * m).min(F8::splat(RR_CAP));
         let live = match rr.any() {
             true => rr & rng.f(sobol, r(dims::ROULETTE)).lt(q),
             false => M8::default(),
