@@ -359,7 +359,7 @@ mod avx2 {
     /// rounds, 2^18 rays, sphere d10 and Menger d10, shared 2-core Zen 4,
     /// docs/PERF.md ninth session): coherent 1.07-1.30x, incoherent
     /// 0.90-1.16x, 0 differing rays; AVX-512's masked scatter in its place
-    /// was 0.97-1.00x of these stores on the octree and 0.86-0.89x on the DAG.
+    /// was 1.00-1.03x of these stores on the octree and 0.86-0.94x on the DAG.
     #[inline(always)]
     unsafe fn push_stack(
         s: &State,
