@@ -77,8 +77,10 @@ struct PtParams {
     pixels: u32,
     // 0 = independent, 1 = Sobol' (src/pathtrace/sampler.rs `Sampler`).
     sampler: u32,
-    _pad1: u32,
-    _pad2: u32,
+    // Russian roulette's survival q = min(rr_scale max(beta eta^2), rr_cap):
+    // integrator.rs `survival`, its RR_SCALE and RR_CAP passed in.
+    rr_scale: f32,
+    rr_cap: f32,
 }
 
 @group(0) @binding(0) var<uniform> P: PtParams;
@@ -536,8 +538,8 @@ fn trace(o_in: vec3<f32>, d_in: vec3<f32>, key: Rng) -> vec3<f32> {
         bounces += 1u;
         if (bounces >= P.rr_depth) {
             let be = beta * eta2;
-            // CPU twin: integrator.rs `survival` (RR_SCALE 3, RR_CAP 0.95).
-            let q = min(3.0 * max(be.x, max(be.y, be.z)), 0.95);
+            // CPU twin: integrator.rs `survival`.
+            let q = min(P.rr_scale * max(be.x, max(be.y, be.z)), P.rr_cap);
             if (!(rnd(key, base + DIM_ROULETTE) < q)) {
                 break;
             }

@@ -77,7 +77,9 @@ struct PtParams {
     pixel0: u32,
     pixels: u32,
     sampler: u32,
-    _pad: [u32; 2],
+    /// Russian roulette's scale and cap ([`PtRender`]).
+    rr_scale: f32,
+    rr_cap: f32,
 }
 const _: () = assert!(std::mem::size_of::<PtParams>() == 208);
 
@@ -102,6 +104,10 @@ pub struct PtRender {
     pub rr_depth: u32,
     /// `pathtrace::sampler::Sampler::gpu_code` (0 independent, 1 Sobol').
     pub sampler: u32,
+    /// Russian roulette's survival `min(rr_scale max(beta eta^2), rr_cap)`
+    /// (`pathtrace::integrator::survival`'s constants).
+    pub rr_scale: f32,
+    pub rr_cap: f32,
 }
 
 /// Per pixel (row-major): mean radiance, M2 (sum of squared deviations),
@@ -282,7 +288,8 @@ impl PathtracePipeline {
             pixel0: 0,
             pixels: 0,
             sampler: r.sampler,
-            _pad: [0; 2],
+            rr_scale: r.rr_scale,
+            rr_cap: r.rr_cap,
         };
         if r.sampler == 1 {
             // The camera jitter is the Sobol' pair 0 (common.wgsl `camera_ray`).

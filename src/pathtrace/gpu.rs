@@ -5,7 +5,7 @@
 //! in `TESTS/pathtrace/manifest_gpu.yaml`.
 
 use super::bsdf::Material;
-use super::integrator::{Image, RenderParams, Scene};
+use super::integrator::{Image, RenderParams, Scene, RR_CAP, RR_SCALE};
 use super::shapes::Shape;
 use crate::budget::MemBudget;
 use crate::camera::Camera;
@@ -104,6 +104,8 @@ pub fn render_gpu(
         max_bounces: p.max_bounces,
         rr_depth: p.rr_depth,
         sampler: p.sampler.gpu_code(),
+        rr_scale: RR_SCALE,
+        rr_cap: RR_CAP,
     };
     let out = pipe.render(ctx, cam, &r, PATHS_PER_SUBMIT, budget)?;
     let k = p.spp as f32;
