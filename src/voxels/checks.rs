@@ -322,7 +322,8 @@ mod tests {
 
     #[test]
     fn normal_differences_are_excused_at_edges_only() {
-        // A solid box; ray 0 meets it exactly on the edge x = y = -1, ray 1
+        // A sphere of radius 10 fills the root box, so the scene is a solid
+        // box; ray 0 meets it exactly on the edge x = y = -1, ray 1
         // in the middle of the face x = -1: both casts agree on the leaf,
         // not on the normal.
         let shape = Shape::Sphere { radius: 10.0 };
