@@ -21,6 +21,7 @@ use super::octree::Octree;
 use super::outputs::{attr_metrics, build_metrics, mesh_metrics, put_hits};
 use super::referee::referee;
 use super::referee_bounds::ball_entry;
+use super::referee_contour::{slab_tie, voxel_entry};
 use super::referee_mesh::{check_triangles, check_voxels};
 use super::render::{attr_image, cast_all, cast_all_contours, VoxelHits};
 use super::shape::Shape;
@@ -148,6 +149,10 @@ pub fn gpu_parity(
         o: &b.o,
         d: &b.d,
         scene,
+        contours: match th {
+            Through::Contours(t, cs) => Some((t, cs)),
+            _ => None,
+        },
         p: &p,
         case,
     };
@@ -206,12 +211,14 @@ pub fn gpu_parity(
     Ok(out)
 }
 
-/// Slack of a normal tie relative to the ray's coordinate magnitudes
-/// (`|o| + t |d|`): 2^-20, 8 f32 ulps. The cast's entry times carry a few
-/// ulps of those magnitudes, and which face of an edge is entered first
-/// flips with them (H100 against the CPU: entry-face gaps up to 8.7e-7 at
-/// t = 3, |o| = 3.5, which a margin of 2^-22 world units would not excuse).
-const NORMAL_TIE_REL: f64 = 1.0 / (1u64 << 20) as f64;
+/// Slack of a normal or contour-slab tie relative to the ray's coordinate
+/// magnitudes (`|o| + t |d|`): 2^-20, 8 f32 ulps. The cast's entry times
+/// and slab offsets carry a few ulps of those magnitudes, and which face of
+/// an edge is entered first, or whether a slab just touching a voxel's
+/// interval is met, flips with them (H100 against the CPU: entry-face gaps
+/// up to 8.7e-7 at t = 3, |o| = 3.5, which a margin of 2^-22 world units
+/// would not excuse).
+const TIE_REL: f64 = 1.0 / (1u64 << 20) as f64;
 
 /// The GPU and CPU casts of one batch and what the referee needs to judge
 /// their differences.
@@ -221,6 +228,9 @@ struct CastPair<'a> {
     o: &'a [[f32; 3]],
     d: &'a [[f32; 3]],
     scene: (&'a Shape, u32),
+    /// The contour cast's tree and contours (leaf ties also excused at
+    /// slab ties, [`slab_tie`]).
+    contours: Option<(&'a Octree, &'a [u32])>,
     p: &'a CastParams,
     case: &'a str,
 }
@@ -234,6 +244,7 @@ impl CastPair<'_> {
         &self,
         differs: impl Fn(usize) -> bool,
         margin: impl Fn(usize) -> f64,
+        slab: impl Fn(usize) -> bool,
     ) -> (Vec<u8>, usize) {
         let (g, c) = (self.gpu, self.cpu);
         let differ: Vec<usize> = (0..g.hit.len()).filter(|&i| differs(i)).collect();
@@ -242,7 +253,7 @@ impl CastPair<'_> {
             let (o, d) = (self.o[i].map(|x| x as f64), self.d[i].map(|x| x as f64));
             let (shape, depth) = self.scene;
             let f = referee(shape, depth, o, d, self.p.near, self.p.far, margin(i));
-            excused[i] = (f.tie || f.near_tie) as u8;
+            excused[i] = (f.tie || f.near_tie || slab(i)) as u8;
             if excused[i] == 0 {
                 eprintln!(
                     "{}: ray {i} o={o:?} d={d:?}: gpu leaf {:?} normal {:?}, cpu leaf {:?} normal {:?} (referee {:?} {:?})",
@@ -254,25 +265,67 @@ impl CastPair<'_> {
     }
 
     /// [`Self::excuse`] where the leaves differ, with the referee's margin:
-    /// a tie, or within `margin` world units of a voxel boundary.
+    /// a tie, or within `margin` world units of a voxel boundary; in a
+    /// contour cast also a slab tie at the leaf one cast stopped at and the
+    /// other passed ([`Self::slab_tie`]).
     fn leaf_ties(&self, margin: f64) -> (Vec<u8>, usize) {
         let (g, c) = (self.gpu, self.cpu);
-        self.excuse(|i| g.leaf[i] != c.leaf[i], |_| margin)
+        self.excuse(
+            |i| g.leaf[i] != c.leaf[i],
+            |_| margin,
+            |i| self.slab_tie(i, margin),
+        )
+    }
+
+    /// `TIE_REL` of ray `i`'s coordinate magnitudes at `t`.
+    fn rel_slack(&self, i: usize, t: f64) -> f64 {
+        let norm = |v: [f32; 3]| v.map(|x| x as f64 * x as f64).iter().sum::<f64>().sqrt();
+        TIE_REL * (norm(self.o[i]) + t.max(0.0) * norm(self.d[i]))
+    }
+
+    /// Whether ray `i` of a contour cast meets the slab of the leaf that
+    /// one cast stopped at and the other passed (the nearer of the two
+    /// leaves, or the only one when a cast missed) within `margin` plus
+    /// [`TIE_REL`] of the slab test flipping ([`slab_tie`]).
+    fn slab_tie(&self, i: usize, margin: f64) -> bool {
+        let Some((tree, cs)) = self.contours else {
+            return false;
+        };
+        let (o, d) = (self.o[i].map(|x| x as f64), self.d[i].map(|x| x as f64));
+        let depth = self.scene.1;
+        let stop = |leaf: [i32; 3]| {
+            let v = leaf.map(|x| x as u32);
+            (leaf[0] >= 0).then(|| (voxel_entry(depth, v, o, d), v))
+        };
+        let passed = match (stop(self.gpu.leaf[i]), stop(self.cpu.leaf[i])) {
+            (Some(a), Some(b)) => {
+                if a.0 <= b.0 {
+                    a
+                } else {
+                    b
+                }
+            }
+            (Some(a), None) | (None, Some(a)) => a,
+            (None, None) => return false,
+        };
+        let code = (tree.attr_index(passed.1))
+            .and_then(|k| cs.get(k as usize).copied())
+            .unwrap_or(0);
+        let slack = margin + self.rel_slack(i, passed.0);
+        let interval = (self.p.near, self.p.far);
+        slab_tie(code, depth, passed.1, o, d, interval, slack)
     }
 
     /// [`Self::excuse`] where the leaves agree but the normals do not, the
-    /// margin widened by [`NORMAL_TIE_REL`] of the ray's coordinate
+    /// margin widened by [`TIE_REL`] of the ray's coordinate
     /// magnitudes: the ray enters the voxel within rounding of an edge or
     /// corner, so either face is right.
     fn normal_ties(&self, margin: f64) -> (Vec<u8>, usize) {
         let (g, c) = (self.gpu, self.cpu);
-        let norm = |v: [f32; 3]| v.map(|x| x as f64 * x as f64).iter().sum::<f64>().sqrt();
         self.excuse(
             |i| g.leaf[i] == c.leaf[i] && g.normal[i] != c.normal[i],
-            |i| {
-                let t = (c.t[i] as f64).max(0.0);
-                margin + NORMAL_TIE_REL * (norm(self.o[i]) + t * norm(self.d[i]))
-            },
+            |i| margin + self.rel_slack(i, c.t[i] as f64),
+            |_| false,
         )
     }
 }
@@ -339,10 +392,57 @@ mod tests {
             o: &o,
             d: &d,
             scene: (&shape, 4),
+            contours: None,
             p: &CastParams::default(),
             case: "test",
         };
         assert_eq!(pair.leaf_ties(2f64.powi(-22)), (vec![0, 0], 0));
         assert_eq!(pair.normal_ties(2f64.powi(-22)), (vec![1, 0], 2));
+    }
+
+    #[test]
+    fn contour_leaf_differences_are_excused_at_slab_ties_only() {
+        // Every leaf of the depth-3 sphere carries the contour of
+        // `grazing`, whose ray leaves voxel [3, 3, 3] just as it enters the
+        // slab: one cast stopping there and the other passing it is a tie;
+        // so it is moved 1e-5 into the slab (the ends 2.9e-6 apart in t,
+        // within `TIE_REL` of |o| + t |d| = 4.0: 9.5e-6 over both ends); moved
+        // 1/1000 of a voxel (2.5e-4), the ray meets the slab clearly.
+        use crate::budget::MemBudget;
+        use crate::voxels::octree::build;
+        use crate::voxels::referee_contour::grazing;
+        let shape = Shape::Sphere { radius: 0.8 };
+        let tree = build(&shape, 3, &MemBudget::fixed(1 << 20)).unwrap();
+        let (v, _, _) = grazing(0.0);
+        let cs = vec![v; tree.leaves().len()];
+        let rays = [grazing(0.0), grazing(1e-5), grazing(2.5e-4)];
+        let o = rays.map(|(_, o, _)| o.map(|x| x as f32));
+        let d = rays.map(|(_, _, d)| d.map(|x| x as f32));
+        let mut stopped = hits(&[[-1.0, 0.0, 0.0]; 3], &[1.0; 3]);
+        stopped.leaf = vec![[3, 3, 3]; 3];
+        let mut missed = hits(&[[0.0; 3]; 3], &[-1.0; 3]);
+        (missed.hit, missed.leaf) = (vec![0; 3], vec![[-1; 3]; 3]);
+        // The next voxel on the ray: the nearer leaf, [3, 3, 3], is judged.
+        let mut next = stopped.clone();
+        next.leaf = vec![[4, 3, 3]; 3];
+        let p = CastParams::default();
+        for (gpu, cpu) in [(&missed, &stopped), (&stopped, &missed), (&next, &stopped)] {
+            let pair = CastPair {
+                gpu,
+                cpu,
+                o: &o,
+                d: &d,
+                scene: (&shape, 3),
+                contours: Some((&tree, &cs)),
+                p: &p,
+                case: "test",
+            };
+            assert_eq!(pair.leaf_ties(2f64.powi(-22)), (vec![1, 1, 0], 3));
+            let cubes = CastPair {
+                contours: None,
+                ..pair
+            };
+            assert_eq!(cubes.leaf_ties(2f64.powi(-22)), (vec![0, 0, 0], 3));
+        }
     }
 }

@@ -28,6 +28,7 @@ pub mod packet;
 pub mod raysets;
 pub mod referee;
 pub mod referee_bounds;
+pub mod referee_contour;
 pub mod referee_dag;
 pub mod referee_mesh;
 pub mod render;

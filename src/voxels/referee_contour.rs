@@ -1,0 +1,137 @@
+//! The contour slab's part of the parity referee: whether a ray meets a
+//! voxel's contour slab (`contour::slab_interval`) within rounding of the
+//! slab test flipping. The cube referee (`referee::referee`) judges voxel
+//! boundaries only; a contour cast also skips a solid leaf whose slab the
+//! ray misses inside the voxel, and where the slab interval and the voxel's
+//! interval just touch, an f32 cast with fused multiply-adds (the H100) and
+//! one without (the CPU, lavapipe) can decide that test differently.
+//! f64, written from the box and slab intervals; it never calls the cast.
+
+use super::contour::slab_interval;
+
+/// The t interval of `o + t d` in the box `[lo, lo + s]^3`, with the axis
+/// whose plane sets each end: `((t_enter, axis), (t_exit, axis))`.
+fn box_interval(lo: [f64; 3], s: f64, o: [f64; 3], d: [f64; 3]) -> ((f64, usize), (f64, usize)) {
+    let mut enter = (f64::NEG_INFINITY, 0);
+    let mut exit = (f64::INFINITY, 0);
+    for a in 0..3 {
+        if d[a] == 0.0 {
+            if o[a] < lo[a] || o[a] > lo[a] + s {
+                return ((f64::INFINITY, a), (f64::NEG_INFINITY, a));
+            }
+            continue;
+        }
+        let (t0, t1) = ((lo[a] - o[a]) / d[a], (lo[a] + s - o[a]) / d[a]);
+        let (t0, t1) = (t0.min(t1), t0.max(t1));
+        if t0 > enter.0 {
+            enter = (t0, a);
+        }
+        if t1 < exit.0 {
+            exit = (t1, a);
+        }
+    }
+    (enter, exit)
+}
+
+/// The t at which `o + t d` enters the depth-`depth` voxel `voxel`'s box.
+pub fn voxel_entry(depth: u32, voxel: [u32; 3], o: [f64; 3], d: [f64; 3]) -> f64 {
+    let s = 2.0 / (1u64 << depth) as f64;
+    box_interval(voxel.map(|i| -1.0 + i as f64 * s), s, o, d)
+        .0
+         .0
+}
+
+/// Whether the ray `o + t d` over `[near, far]` meets contour `v`'s slab in
+/// the depth-`depth` voxel `voxel` within rounding of that test flipping:
+/// the slab interval met with the voxel's interval is empty or not by no
+/// more than the rounding of its two ends. An end set by a slab plane
+/// carries `slack / |n . d|` (the plane's offset `n . (o - c) - p s`
+/// rounded by about `slack` world units, divided by the ray's rate across
+/// it); an end set by a face of axis `a` carries `slack / |d_a|`; `near`
+/// and `far` are exact. `false` for `v == 0` (no contour: a cube, the cube
+/// referee's case).
+pub fn slab_tie(
+    v: u32,
+    depth: u32,
+    voxel: [u32; 3],
+    o: [f64; 3],
+    d: [f64; 3],
+    (near, far): (f64, f64),
+    slack: f64,
+) -> bool {
+    if v == 0 {
+        return false;
+    }
+    let s = 2.0 / (1u64 << depth) as f64;
+    let lo = voxel.map(|i| -1.0 + i as f64 * s);
+    let c = lo.map(|x| x + 0.5 * s);
+    let ((te, ae), (tx, ax)) = box_interval(lo, s, o, d);
+    let (ta, tb) = slab_interval(v, c, s, o, d);
+    if ta > tb {
+        return false;
+    }
+    let (n, _, _) = super::contour::decode::<f64>(v);
+    let nd = (n[0] * d[0] + n[1] * d[1] + n[2] * d[2]).abs();
+    let plane = if nd > 0.0 { slack / nd } else { 0.0 };
+    let face = |a: usize| slack / d[a].abs();
+    let (lower, lower_err) = if ta >= te && ta >= near {
+        (ta, plane)
+    } else if te >= near {
+        (te, face(ae))
+    } else {
+        (near, 0.0)
+    };
+    let (upper, upper_err) = if tb <= tx && tb <= far {
+        (tb, plane)
+    } else if tx <= far {
+        (tx, face(ax))
+    } else {
+        (far, 0.0)
+    };
+    (lower - upper).abs() <= lower_err + upper_err
+}
+
+#[cfg(test)]
+/// A ray that leaves voxel `[3, 3, 3]` (depth 3, edge 0.25) through its
+/// +x face just where it enters the slab of a contour tilted in x and
+/// y: the slab test sits exactly on its edge; moved along the slab's
+/// normal by `shift` world units, the ray enters the slab inside the
+/// voxel or after it.
+pub(crate) fn grazing(shift: f64) -> (u32, [f64; 3], [f64; 3]) {
+    let v = super::contour::encode([0.6, 0.8, 0.0], 0.1, 0.05);
+    let (n, p, h) = super::contour::decode::<f64>(v);
+    let s = 0.25;
+    let c = [-0.125; 3];
+    // On the +x face, on the slab's lower plane n . (x - c) = (p - h) s.
+    let x = c[0] + 0.5 * s;
+    let y = c[1] + ((p - h) * s - n[0] * 0.5 * s) / n[1];
+    let hit = [x, y, c[2]];
+    assert!((y - c[1]).abs() < 0.5 * s, "the point is on the face");
+    // Rising across the lower plane (n . d > 0) while leaving through +x.
+    let d = [0.8, 0.6, 0.0];
+    let o = [0, 1, 2].map(|a| hit[a] - 2.0 * d[a] + shift * n[a]);
+    (v, o, d)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_ray_touching_the_slab_as_it_leaves_the_voxel_is_a_tie() {
+        let slack = 2f64.powi(-22);
+        let cube = (0.0, f64::INFINITY);
+        let (v, o, d) = grazing(0.0);
+        assert!(slab_tie(v, 3, [3, 3, 3], o, d, cube, slack));
+        // A thousandth of a voxel either way is no tie: inside the slab
+        // before the face, or past the voxel before the slab.
+        for shift in [2.5e-4, -2.5e-4] {
+            let (v, o, d) = grazing(shift);
+            assert!(!slab_tie(v, 3, [3, 3, 3], o, d, cube, slack), "{shift}");
+        }
+        // Within the rounding it is: a shift of a tenth of the slack.
+        let (v, o, d) = grazing(0.1 * slack);
+        assert!(slab_tie(v, 3, [3, 3, 3], o, d, cube, slack));
+        assert!(!slab_tie(0, 3, [3, 3, 3], o, d, cube, slack), "no contour");
+    }
+}
