@@ -8,10 +8,11 @@
 //! advances every live lane: the descriptors of all lanes are one gather
 //! (eight loads in flight), PUSH, ADVANCE and POP are computed on every lane
 //! and blended by masks (no data-dependent branch in the step), child
-//! addresses and POP's stack reads are gathers, an octree PUSH prefetches
-//! each pushed lane's child descriptor (the group's next step gathers it
-//! after the other group's step has run; not the DAG, where it cost
-//! coherent rays 10-16%, docs/PERF.md), POP's highest differing bit
+//! addresses and POP's stack reads are gathers, a PUSH prefetches each
+//! pushed lane's child descriptor (the group's next step gathers it after
+//! the other group's step has run; on the DAG since the tenth session:
+//! incoherent 1.25-1.53x, coherent 0.96-1.00x on an AVX2 box, docs/PERF.md),
+//! POP's highest differing bit
 //! is the exponent of the bits converted to float (exact: they fit 24 bits
 //! whenever the new scale is below [`S_MAX`]). A lane whose ray stops,
 //! exits or hits the iteration cap is finished by the scalar
@@ -596,10 +597,9 @@ mod avx2 {
                 let hi = _mm256_mask_i32gather_epi32::<4>(zi, base, hi_slot, push);
                 _mm256_add_epi32(hi, _mm256_xor_si256(shift, _mm256_set1_epi32(7)))
             } else {
-                let child = child_relative(base, s, cm, push);
-                prefetch(base, s.parent, child, push);
-                child
+                child_relative(base, s, cm, push)
             };
+            prefetch(base, s.parent, child, push);
             let halfs = _mm256_mul_ps(s.se, half);
             let mut idx_push = zi;
             let pf = _mm256_castsi256_ps(push);
