@@ -67,7 +67,9 @@ pub fn slab_tie(
     let c = lo.map(|x| x + 0.5 * s);
     let ((te, ae), (tx, ax)) = box_interval(lo, s, o, d);
     let (ta, tb) = slab_interval(v, c, s, o, d);
-    if ta > tb {
+    // A ray that misses the box (a corner or edge within rounding is the
+    // cube referee's tie) or the slab's whole plane pair is no slab tie.
+    if te > tx || ta > tb {
         return false;
     }
     let (n, _, _) = super::contour::decode::<f64>(v);
@@ -133,5 +135,8 @@ mod tests {
         let (v, o, d) = grazing(0.1 * slack);
         assert!(slab_tie(v, 3, [3, 3, 3], o, d, cube, slack));
         assert!(!slab_tie(0, 3, [3, 3, 3], o, d, cube, slack), "no contour");
+        // Parallel to the x faces and outside them: the voxel is missed.
+        let (o, d) = ([0.5, -0.2, -0.1], [0.0, 1.0, 0.0]);
+        assert!(!slab_tie(v, 3, [3, 3, 3], o, d, cube, slack), "box missed");
     }
 }
