@@ -1,7 +1,7 @@
 //! Timing harnesses of the voxel casts: the octree against the referee,
 //! the octree against the DAG, the CPU against the GPU, each on coherent
 //! (camera) and incoherent ray sets in one run. Rates are Mrays per second
-//! and per CPU second (/proc, 10 ms ticks).
+//! and per CPU second (the process CPU-time clock, [`super::process_cpu_s`]).
 
 use super::timed;
 use crate::budget::{bytes_for, MemBudget};
