@@ -1,36 +1,41 @@
 //! The beam pre-pass (Laine & Karras 2010, "beam optimization"), made
-//! conservative: each run of [`RUN`] consecutive rays that share one origin
-//! (a row segment of a camera image) is bounded by the narrowest cone about
-//! their mean direction ([`Cone::around`]); a walk of the tree finds the
-//! smallest distance from the origin to a non-empty node box that meets the
-//! cone ([`start_distance`]), and each ray's cast starts there
-//! ([`beam_params`]) instead of at `near`.
+//! conservative: each tile of [`TILE`] x [`TILE`] pixels of a camera image
+//! (rays shaped (H, W); runs of `TILE^2` consecutive rays otherwise) whose
+//! rays share one origin is bounded by the narrowest cone about their mean
+//! direction ([`Cone::around`]); a walk of the tree finds the smallest
+//! distance from the origin to a non-empty node box that meets the cone
+//! ([`start_distance`]). A tile whose cone meets no non-empty box is
+//! answered as misses without a cast; every other ray's cast starts at the
+//! tile's distance ([`ray_near`]) instead of at `near`, in the lane cast
+//! (f32) or the per-ray loop ([`cast_all_beam`]).
 //!
 //! Why the start never passes a hit: a ray's hit point lies in a solid
 //! leaf, so inside a non-empty node at every level above it, and inside the
 //! cone (the ray is in it); so some box the walk accepts contains it, and
 //! its distance from the origin, `t |d|`, is at least that box's distance.
 //! The walk prunes only boxes that are empty, miss the cone (bounding-sphere
-//! test) or lie farther than the best box found. The start is pulled back
-//! by [`MARGIN`] (relative) and by a bound on the rounding of the cast's
-//! plane times ([`plane_time_error`]), so the cast begins strictly in the
-//! empty space before its first solid voxel even as its own f32 arithmetic
-//! sees it, and it then makes the same decisions as the cast from `near`
-//! from that voxel on: same `hit`, `t`, `leaf`, `normal` (bit for bit;
-//! fewer iterations). Runs with differing origins,
-//! wider cones than [`MAX_HALF_ANGLE`], or an LOD cut (whose stop voxel
-//! need not hold solid at the ray) are cast from `near` unchanged.
+//! test, the sphere grown by the cast's rounding, [`Cone::slack`]) or lie
+//! farther than the best box found; so a tile it finds nothing for holds no
+//! ray the cast could find a hit on. The start is pulled back by [`MARGIN`]
+//! (relative) and by a bound on the rounding of the cast's plane times
+//! ([`plane_time_error`]), so the cast begins strictly in the empty space
+//! before its first solid voxel even as its own f32 arithmetic sees it,
+//! and it then makes the same decisions as the cast from `near` from that
+//! voxel on: same `hit`, `t`, `leaf`, `normal` (bit for bit; fewer
+//! iterations). Tiles with differing origins, wider cones than
+//! [`MAX_HALF_ANGLE`], or an LOD cut (whose stop voxel need not hold solid
+//! at the ray) are cast from `near` unchanged.
 //! Referee: the per-ray cast (`voxel_beam_*` cases, unit tests below).
 
 use crate::parallel::par_collect;
-use crate::real::Real;
 
-use super::cast::{cast_with, Addressing, CastHit, CastParams, CastReal};
-use super::hits::collect;
+use super::cast::{cast_with, Addressing, CastParams, CastReal};
+use super::hits::{cast_chunks, GRAIN};
 use super::render::VoxelHits;
+use super::tiles::Tiling;
 
-/// Rays per beam.
-pub const RUN: usize = 16;
+/// Pixels per side of a beam tile.
+pub const TILE: usize = 8;
 
 /// Relative pull-back of each start distance.
 pub const MARGIN: f64 = 1e-5;
@@ -38,12 +43,20 @@ pub const MARGIN: f64 = 1e-5;
 /// Cones wider than this (radians) are not walked: the bound would be poor.
 pub const MAX_HALF_ANGLE: f64 = 0.5;
 
-/// A cone from `o` about the unit `axis` with half-angle `half`.
+/// A cone from `o` about the unit `axis` with half-angle `half`; boxes are
+/// grown by `slack` (world units) when tested against it. `time_error`
+/// bounds the cast's plane-time rounding ([`plane_time_error`]) on every
+/// ray it was built from.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Cone {
     pub o: [f64; 3],
     pub axis: [f64; 3],
     pub half: f64,
+    pub slack: f64,
+    pub time_error: f64,
+    cos_half: f64,
+    sin_half: f64,
+    tan_half: f64,
 }
 
 fn dot(a: [f64; 3], b: [f64; 3]) -> f64 {
@@ -55,114 +68,194 @@ fn unit(v: [f64; 3]) -> Option<[f64; 3]> {
     (l > 0.0 && l.is_finite()).then(|| v.map(|x| x / l))
 }
 
-impl Cone {
-    /// The cone about the rays' mean direction holding every ray `(o[i], d[i])`,
-    /// or `None` when the origins differ, a direction is zero, or the
-    /// half-angle passes [`MAX_HALF_ANGLE`].
-    pub fn around<F: Real>(o: &[[F; 3]], d: &[[F; 3]]) -> Option<Cone> {
-        let o0 = o.first()?.map(|x| x.f64());
-        if o.iter().any(|x| x.map(|v| v.f64()) != o0) {
-            return None;
-        }
-        let dn = d
-            .iter()
-            .map(|v| unit(v.map(|x| x.f64())))
-            .collect::<Option<Vec<_>>>()?;
-        let sum = dn
-            .iter()
-            .fold([0.0; 3], |s, v| [0, 1, 2].map(|a| s[a] + v[a]));
-        let axis = unit(sum)?;
-        let half = dn
-            .iter()
-            .map(|v| dot(*v, axis).clamp(-1.0, 1.0).acos())
-            .fold(0.0, f64::max)
-            + 1e-9;
-        (half <= MAX_HALF_ANGLE).then_some(Cone { o: o0, axis, half })
+/// A [`Cone`] being built from rays one at a time about a given axis.
+#[derive(Clone, Copy, Debug)]
+pub struct ConeAcc<F> {
+    o: [F; 3],
+    axis: [f64; 3],
+    /// The smallest cos^2 of a ray's angle to the axis.
+    cos2_min: f64,
+    /// Each axis's smallest `|d_a|`, and the largest `|d|^2`.
+    dmin: [f64; 3],
+    len2_max: f64,
+    ok: bool,
+}
+
+impl<F: CastReal> ConeAcc<F> {
+    /// An empty cone from `o` about `axis` (need not be unit; `None` when
+    /// zero).
+    pub fn new(o: [F; 3], axis: [f64; 3]) -> Option<Self> {
+        Some(ConeAcc {
+            o,
+            axis: unit(axis)?,
+            cos2_min: 1.0,
+            dmin: [f64::INFINITY; 3],
+            len2_max: 0.0,
+            ok: true,
+        })
     }
 
-    /// Whether the box `[lo, hi]` may meet the cone (exact for its bounding
-    /// sphere, so never a false `false`).
+    /// Takes ray `(o, d)` in; a differing origin, a zero direction or one
+    /// 90 degrees or more off the axis spoils the cone.
+    #[inline]
+    pub fn add(&mut self, o: [F; 3], d: [F; 3]) {
+        let d = d.map(|x| x.f64());
+        let (c, l2) = (dot(d, self.axis), dot(d, d));
+        self.ok &= o == self.o && c > 0.0 && l2 > 0.0;
+        self.cos2_min = self.cos2_min.min(c * c / l2);
+        self.dmin = [0, 1, 2].map(|a| self.dmin[a].min(d[a].abs()));
+        self.len2_max = self.len2_max.max(l2);
+    }
+
+    /// The cone holding every ray taken in, its `slack` twice the largest
+    /// distance the cast's rounding can put one from where it is
+    /// (`time_error` times `|d|`, bounded with each axis's smallest `|d_a|`);
+    /// `None` when spoilt, empty, or wider than [`MAX_HALF_ANGLE`].
+    pub fn finish(&self) -> Option<Cone> {
+        if !self.ok || self.len2_max == 0.0 {
+            return None;
+        }
+        let half = self.cos2_min.clamp(0.0, 1.0).sqrt().acos() + 1e-9;
+        let time_error = plane_time_error(self.o, self.dmin.map(F::of));
+        (half <= MAX_HALF_ANGLE).then(|| Cone {
+            o: self.o.map(|x| x.f64()),
+            axis: self.axis,
+            half,
+            slack: 2.0 * time_error * self.len2_max.sqrt(),
+            time_error,
+            cos_half: half.cos(),
+            sin_half: half.sin(),
+            tan_half: half.tan(),
+        })
+    }
+}
+
+impl Cone {
+    /// The cone of `rays` (pairs `(o, d)`, walked twice) about the sum of
+    /// their first and last directions ([`ConeAcc`]).
+    pub fn around<F: CastReal>(
+        rays: impl Iterator<Item = ([F; 3], [F; 3])> + Clone,
+    ) -> Option<Cone> {
+        let (o0, first) = rays.clone().next()?;
+        let (_, last) = rays.clone().last()?;
+        let mut acc = ConeAcc::new(o0, [0, 1, 2].map(|a| first[a].f64() + last[a].f64()))?;
+        rays.for_each(|(o, d)| acc.add(o, d));
+        acc.finish()
+    }
+
+    /// Whether the box `[lo, hi]`, grown by `slack`, may meet the cone
+    /// (exact for its bounding sphere, so never a false `false`).
     pub fn meets(&self, lo: [f64; 3], hi: [f64; 3]) -> bool {
         let v = [0, 1, 2].map(|a| 0.5 * (lo[a] + hi[a]) - self.o[a]);
         let e = [0, 1, 2].map(|a| hi[a] - lo[a]);
-        let r = 0.5 * dot(e, e).sqrt();
-        let l = dot(v, v).sqrt();
-        if l <= r {
+        self.meets_sphere(v, 0.5 * dot(e, e).sqrt())
+    }
+
+    /// Whether the ball of radius `r + slack` about `o + v` may meet the
+    /// cone. Seen from `o` (at distance `l`) the ball covers the
+    /// directions within `asin(r / l)` of `v`, and two such caps meet when
+    /// the angle between their centres is at most the sum of their
+    /// half-angles; as cosines, times `l`: `v . axis >= cos(half) sqrt(l^2 -
+    /// r^2) - sin(half) r`, one square root and no division (the `1e-9 (1 +
+    /// l^2)` term stands for a rounding slack of `1e-9 l`).
+    #[inline]
+    pub fn meets_sphere(&self, v: [f64; 3], r: f64) -> bool {
+        let r = r + self.slack;
+        let l2 = dot(v, v);
+        if l2 <= r * r {
             return true;
         }
-        let ang = (dot(v, self.axis) / l).clamp(-1.0, 1.0).acos();
-        ang <= self.half + (r / l).asin() + 1e-9
+        let lhs = dot(v, self.axis) + self.sin_half * r + 1e-9 * (1.0 + l2);
+        lhs >= self.cos_half * (l2 - r * r).sqrt()
     }
 }
 
 /// Euclidean distance from `o` to the box `[lo, hi]` (0 inside).
 pub fn box_distance(o: [f64; 3], lo: [f64; 3], hi: [f64; 3]) -> f64 {
+    box_distance2(o, lo, hi).sqrt()
+}
+
+/// [`box_distance`] squared.
+#[inline]
+fn box_distance2(o: [f64; 3], lo: [f64; 3], hi: [f64; 3]) -> f64 {
     let g = [0, 1, 2].map(|a| (lo[a] - o[a]).max(o[a] - hi[a]).max(0.0));
-    dot(g, g).sqrt()
+    dot(g, g)
 }
 
 /// The smallest distance from the cone's origin to a non-empty box of the
 /// tree `nodes` (addressing `A`, depth `depth`) that meets the cone, walked
 /// down to boxes no wider than the cone there (or solid leaves), nearest
 /// child first, pruning boxes no nearer than the best so far. `f64::INFINITY`
-/// when no non-empty box meets the cone.
+/// when no non-empty box meets the cone. Distances are compared squared;
+/// box corners are exact (dyadic) in f64.
 pub fn start_distance<A: Addressing>(nodes: &[u32], depth: u32, cone: &Cone) -> f64 {
-    let n = (1u64 << depth) as f64;
-    let world = |x: u64| -1.0 + 2.0 * x as f64 / n;
-    let tan = cone.half.tan();
+    let voxel = 2.0 / (1u64 << depth) as f64;
+    let tan2 = cone.tan_half * cone.tan_half;
     let mut best = f64::INFINITY;
-    // (distance, slot, level, low corner in finest voxels)
-    let mut stack = vec![(0.0, 0usize, 0u32, [0u64; 3])];
-    let mut kids = Vec::with_capacity(8);
-    while let Some((dist, slot, level, lo)) = stack.pop() {
-        if dist >= best {
+    // (squared distance, slot, level, low corner in finest voxels)
+    let mut stack = Vec::with_capacity(8 * depth as usize + 1);
+    stack.push((0.0, 0usize, 0u32, [0u64; 3]));
+    let mut kids = [(0.0, 0usize, 0u32, [0u64; 3]); 8];
+    while let Some((dist2, slot, level, lo)) = stack.pop() {
+        if dist2 >= best {
             continue;
         }
         let desc = nodes[2 * slot];
         let (nonleaf, valid) = (desc & 0xFF, desc >> 8 & 0xFF);
         let h = 1u64 << (depth - level - 1);
-        kids.clear();
+        let size = h as f64 * voxel;
+        let radius = 0.5 * 3f64.sqrt() * size;
+        let last = nonleaf == 0 || level + 1 >= depth;
+        let mut k = 0;
         for c in 0..8u32 {
             if valid >> c & 1 == 0 {
                 continue;
             }
             let clo = [0, 1, 2].map(|a| lo[a] + (c as u64 >> a & 1) * h);
-            let wlo = clo.map(world);
-            let whi = clo.map(|x| world(x + h));
-            if !cone.meets(wlo, whi) {
+            let wlo = clo.map(|x| -1.0 + x as f64 * voxel);
+            let whi = wlo.map(|x| x + size);
+            let v = [0, 1, 2].map(|a| wlo[a] + 0.5 * size - cone.o[a]);
+            if !cone.meets_sphere(v, radius) {
                 continue;
             }
-            let dist = box_distance(cone.o, wlo, whi);
-            if dist >= best {
+            let d2 = box_distance2(cone.o, wlo, whi);
+            if d2 >= best {
                 continue;
             }
-            let size = 2.0 * h as f64 / n;
-            let fine = size <= 2.0 * dist * tan;
-            if nonleaf >> c & 1 == 0 || fine || level + 1 >= depth {
-                best = dist;
+            let fine = size * size <= 4.0 * d2 * tan2;
+            if last || nonleaf >> c & 1 == 0 || fine {
+                best = d2;
             } else {
                 let child = A::child(nodes, slot, desc, desc << (7 - c), c);
-                kids.push((dist, child, level + 1, clo));
+                kids[k] = (d2, child, level + 1, clo);
+                k += 1;
             }
         }
         // Nearest child on top of the stack.
-        kids.sort_by(|a, b| b.0.total_cmp(&a.0));
-        stack.extend_from_slice(&kids);
+        let kids = &mut kids[..k];
+        kids.sort_unstable_by(|a, b| b.0.total_cmp(&a.0));
+        stack.extend_from_slice(kids);
     }
-    best
+    best.sqrt()
 }
 
-/// `p` with `near` raised to the start of ray `(o, d)` for a run whose start
-/// distance is `dist`: pulled back by [`MARGIN`] and by [`plane_time_error`]
-/// (so the cast's own rounded plane times cannot put the start past the
-/// hit voxel's entry); `p` itself when that is not beyond `near`.
-pub fn beam_params<F: CastReal>(p: &CastParams, o: [F; 3], d: [F; 3], dist: f64) -> CastParams {
+/// The `near` of a ray with direction `d` in a tile whose start distance
+/// is `dist`: infinite (a miss, answered without a cast) when the tile's
+/// cone met no non-empty box; else the distance over `|d|`, pulled back by
+/// [`MARGIN`] and by `time_error` (the tile's bound on the cast's
+/// plane-time rounding, [`Cone::time_error`], so the cast's own rounded
+/// plane times cannot put the start past the hit voxel's entry), and never
+/// below `p.near`.
+pub fn ray_near<F: CastReal>(p: &CastParams, d: [F; 3], dist: f64, time_error: f64) -> f64 {
+    if dist == f64::INFINITY {
+        return f64::INFINITY;
+    }
     let len = dot(d.map(|x| x.f64()), d.map(|x| x.f64())).sqrt();
-    let s = dist / len * (1.0 - MARGIN) - plane_time_error(o, d);
+    let s = dist / len * (1.0 - MARGIN) - time_error;
     if s.is_finite() && s > p.near {
-        CastParams { near: s, ..*p }
+        s
     } else {
-        *p
+        p.near
     }
 }
 
@@ -174,7 +267,7 @@ pub fn beam_params<F: CastReal>(p: &CastParams, o: [F; 3], d: [F; 3], dist: f64)
 /// doubled here for margin. A grazing axis (tiny `dir_a`) makes it large and
 /// the start falls back to `near`.
 pub fn plane_time_error<F: CastReal>(o: [F; 3], d: [F; 3]) -> f64 {
-    let eps = 2f64.powi(F::EPS_LOG2);
+    let eps = F::exp2i(F::EPS_LOG2).f64();
     (0..3)
         .map(|a| {
             let dir = (0.5 * d[a].f64().abs()).max(eps);
@@ -183,44 +276,106 @@ pub fn plane_time_error<F: CastReal>(o: [F; 3], d: [F; 3]) -> f64 {
         .fold(0.0, f64::max)
 }
 
-/// The start distance of each run of `RUN` rays (`None`: cast from `near`).
-pub fn run_starts<F: Real, A: Addressing>(
+/// The cones of band `b`'s tiles, each about the sum of its first and last
+/// rays' directions, built in one pass over the band in memory order.
+fn band_cones<F: CastReal>(
+    tiles: &Tiling,
+    b: usize,
+    o: &[[F; 3]],
+    d: &[[F; 3]],
+) -> Vec<Option<Cone>> {
+    let mut ends = vec![None; tiles.across()];
+    tiles.each_part(b, |j, part| {
+        let e: &mut Option<(usize, usize)> = &mut ends[j];
+        *e = Some((e.map_or(part.start, |e| e.0), part.end - 1));
+    });
+    let mut acc: Vec<Option<ConeAcc<F>>> = ends
+        .iter()
+        .map(|e| {
+            let (first, last) = (*e)?;
+            ConeAcc::new(
+                o[first],
+                [0, 1, 2].map(|a| d[first][a].f64() + d[last][a].f64()),
+            )
+        })
+        .collect();
+    tiles.each_part(b, |j, part| {
+        if let Some(c) = acc[j].as_mut().filter(|c| c.ok) {
+            let mut local = *c;
+            for i in part {
+                local.add(o[i], d[i]);
+            }
+            *c = local;
+        }
+    });
+    acc.iter().map(|c| c.as_ref()?.finish()).collect()
+}
+
+/// Every ray's `near` from its tile's beam ([`ray_near`]; `p.near` where
+/// the tile has no cone), a band of tiles per task; `None` when no tile
+/// has one (rays without a shared origin, or an LOD cut).
+pub fn beam_nears<F: CastReal, A: Addressing>(
     nodes: &[u32],
     depth: u32,
+    tiles: &Tiling,
     o: &[[F; 3]],
     d: &[[F; 3]],
     p: &CastParams,
-) -> Vec<Option<f64>> {
-    par_collect("voxels.beam_starts", o.len().div_ceil(RUN), |k| {
-        let r = k * RUN..((k + 1) * RUN).min(o.len());
-        if p.lod.is_some() {
+) -> Option<Vec<f64>> {
+    if p.lod.is_some() {
+        return None;
+    }
+    let bands = par_collect("voxels.beam_starts", tiles.bands(), |b| {
+        let starts: Vec<Option<(f64, f64)>> = band_cones(tiles, b, o, d)
+            .iter()
+            .map(|c| c.map(|c| (start_distance::<A>(nodes, depth, &c), c.time_error)))
+            .collect();
+        if starts.iter().all(Option::is_none) {
             return None;
         }
-        let cone = Cone::around(&o[r.clone()], &d[r])?;
-        Some(start_distance::<A>(nodes, depth, &cone))
-    })
+        let mut near = Vec::with_capacity(tiles.band(b).len());
+        tiles.each_part(b, |j, part| match starts[j] {
+            Some((dist, err)) => near.extend(part.map(|i| ray_near(p, d[i], dist, err))),
+            None => near.extend(part.map(|_| p.near)),
+        });
+        Some(near)
+    });
+    if bands.iter().all(Option::is_none) {
+        return None;
+    }
+    let mut near = Vec::with_capacity(o.len());
+    for (b, part) in bands.into_iter().enumerate() {
+        match part {
+            Some(v) => near.extend(v),
+            None => near.extend(tiles.band(b).map(|_| p.near)),
+        }
+    }
+    Some(near)
 }
 
-/// Every ray cast from its run's beam start by the SSE cast (f32) or the
-/// per-ray loop (other precisions): `hit`, `t`, `leaf`, `normal` identical
-/// to the per-ray cast from `near`, fewer `iters`.
+/// Every ray cast from its tile's beam start ([`beam_nears`]) by the lane
+/// cast (f32) or the per-ray loop (other precisions): `hit`, `t`, `leaf`,
+/// `normal` identical to the per-ray cast from `near`, fewer `iters`.
 pub fn cast_all_beam<F: CastReal, A: Addressing>(
     nodes: &[u32],
     depth: u32,
+    shape: &[usize],
     o: &[[F; 3]],
     d: &[[F; 3]],
     p: &CastParams,
 ) -> VoxelHits<F> {
-    let starts = run_starts::<F, A>(nodes, depth, o, d, p);
-    let res: Vec<CastHit<F>> = par_collect("voxels.cast_beam", o.len(), |i| {
-        let q = match starts[i / RUN] {
-            Some(dist) => beam_params(p, o[i], d[i], dist),
-            None => *p,
-        };
-        F::cast_sse::<A>(nodes, depth, o[i], d[i], &q)
-            .unwrap_or_else(|| cast_with::<F, A>(nodes, depth, o[i], d[i], &q, None))
-    });
-    collect(res)
+    let tiles = Tiling::new(shape, o.len(), TILE);
+    let near = beam_nears::<F, A>(nodes, depth, &tiles, o, d, p);
+    cast_chunks("voxels.cast_beam", o.len(), GRAIN, |r, out| {
+        let part = near.as_deref().map(|n| &n[r.clone()]);
+        if F::SIMD {
+            F::cast_lanes::<A>(nodes, depth, &o[r.clone()], &d[r], p, part, out);
+        } else {
+            for (k, (i, h)) in r.zip(out).enumerate() {
+                *h = cast_with::<F, A>(nodes, depth, o[i], d[i], &p.for_ray(part, k), None);
+            }
+        }
+    })
 }
 
 #[cfg(test)]
@@ -229,6 +384,7 @@ mod tests {
     use crate::budget::MemBudget;
     use crate::camera::Camera;
     use crate::rays::RayGen;
+    use crate::real::Real;
     use crate::voxels::batch::Batch;
     use crate::voxels::cast::{Absolute, Relative};
     use crate::voxels::dag::build_dag;
@@ -259,19 +415,26 @@ mod tests {
         let b = camera_rays::<F>(96);
         let p = b.params(None, 1 << 16);
         let exact = cast_all::<F>(&t, &b.o, &b.d, &p);
-        let starts = run_starts::<F, Relative>(&t.nodes, depth, &b.o, &b.d, &p);
-        let (mut raised, mut hits) = (0, 0);
-        for i in 0..b.o.len() {
-            let dist = starts[i / RUN].expect("camera runs share an origin");
-            let q = beam_params(&p, b.o[i], b.d[i], dist);
-            raised += (q.near > p.near) as u32;
-            if exact.hit[i] == 1 {
-                hits += 1;
-                let th = exact.t[i].f64();
-                assert!(q.near < th, "{s:?} ray {i}: {} >= {th}", q.near);
+        for tile in [2, TILE] {
+            let tiles = Tiling::new(&b.shape, b.o.len(), tile);
+            let near = beam_nears::<F, Relative>(&t.nodes, depth, &tiles, &b.o, &b.d, &p)
+                .expect("camera tiles share an origin");
+            let (mut raised, mut hits, mut answered) = (0, 0, 0);
+            for (i, &ni) in near.iter().enumerate() {
+                raised += (ni > p.near) as u32;
+                answered += (ni == f64::INFINITY) as u32;
+                if exact.hit[i] == 1 {
+                    hits += 1;
+                    let th = exact.t[i].f64();
+                    assert!(ni < th, "{s:?} tile {tile} ray {i}: {ni} >= {th}");
+                }
             }
+            assert!(hits > 200 && raised >= hits, "{hits} {raised}");
+            assert!(
+                answered > 500,
+                "{s:?} tile {tile}: {answered} rays answered as misses"
+            );
         }
-        assert!(hits > 200 && raised >= hits, "{hits} {raised}");
     }
 
     #[test]
@@ -306,15 +469,15 @@ mod tests {
             let b = camera_rays::<f32>(128);
             let p = b.params(None, 1 << 16);
             let per_ray = cast_all::<f32>(&t, &b.o, &b.d, &p);
-            let beam = cast_all_beam::<f32, Relative>(&t.nodes, depth, &b.o, &b.d, &p);
+            let beam = cast_all_beam::<f32, Relative>(&t.nodes, depth, &b.shape, &b.o, &b.d, &p);
             same_but_iters(&beam, &per_ray);
             let it = |h: &VoxelHits<f32>| h.iters.iter().map(|&x| x as i64).sum::<i64>();
             assert!(it(&beam) < it(&per_ray), "{} {}", it(&beam), it(&per_ray));
-            let dag = cast_all_beam::<f32, Absolute>(&g.nodes, depth, &b.o, &b.d, &p);
+            let dag = cast_all_beam::<f32, Absolute>(&g.nodes, depth, &b.shape, &b.o, &b.d, &p);
             same_but_iters(&dag, &cast_all_dag::<f32>(&g, &b.o, &b.d, &p));
             let b = camera_rays::<f64>(64);
             let p = b.params(None, 1 << 16);
-            let beam = cast_all_beam::<f64, Relative>(&t.nodes, depth, &b.o, &b.d, &p);
+            let beam = cast_all_beam::<f64, Relative>(&t.nodes, depth, &b.shape, &b.o, &b.d, &p);
             same_but_iters(&beam, &cast_all::<f64>(&t, &b.o, &b.d, &p));
         }
     }
@@ -332,18 +495,21 @@ mod tests {
             .map(|(o, d)| (o.map(|x| x as f32), d.map(|x| x as f32)))
             .unzip();
         let p = CastParams::default();
-        let starts = run_starts::<f32, Relative>(&t.nodes, 7, &o, &d, &p);
-        assert!(starts.iter().all(Option::is_none));
-        let beam = cast_all_beam::<f32, Relative>(&t.nodes, 7, &o, &d, &p);
+        let shape = [o.len()];
+        let tiles = Tiling::new(&shape, o.len(), TILE);
+        assert!(beam_nears::<f32, Relative>(&t.nodes, 7, &tiles, &o, &d, &p).is_none());
+        let beam = cast_all_beam::<f32, Relative>(&t.nodes, 7, &shape, &o, &d, &p);
         assert_eq!(beam, cast_all::<f32>(&t, &o, &d, &p));
     }
 
     #[test]
     fn the_cone_test_keeps_every_box_a_ray_of_the_cone_passes_through() {
-        let d = [[1.0f64, 0.0, 0.0], [1.0, 0.1, 0.0], [1.0, 0.0, 0.1]];
-        let cone = Cone::around(&[[0.0; 3]; 3], &d).unwrap();
-        // A tiny box on the ray (1, 0.1, 0) at distance ~5.
-        let c = [5.0, 0.5, 0.0];
+        // No axis of a direction near zero: the cast's rounding bound (the
+        // cone's slack) stays tiny.
+        let d = [[1.0f64, 0.01, 0.01], [1.0, 0.1, 0.01], [1.0, 0.01, 0.1]];
+        let cone = Cone::around(d.iter().map(|&d| ([0.0; 3], d))).unwrap();
+        // A tiny box on the ray (1, 0.1, 0.01) at distance ~5.
+        let c = [5.0, 0.5, 0.05];
         assert!(cone.meets(c.map(|x| x - 1e-3), c.map(|x| x + 1e-3)));
         // A box well outside, behind, and one holding the origin.
         assert!(!cone.meets([5.0, 3.0, 3.0], [5.1, 3.1, 3.1]));
@@ -353,6 +519,47 @@ mod tests {
             box_distance([0.0; 3], [3.0, -1.0, 4.0], [5.0, 1.0, 6.0]),
             5.0
         );
-        assert!(Cone::around(&[[0.0; 3], [1.0, 0.0, 0.0]], &d[..2]).is_none());
+        let origins = [[0.0; 3], [1.0, 0.0, 0.0]];
+        assert!(Cone::around(origins.into_iter().zip(d)).is_none());
+    }
+
+    #[test]
+    fn the_cosine_cone_test_agrees_with_the_angle_test() {
+        // The trigonometric form of [`Cone::meets`] (without slack) on boxes
+        // scattered about a cone: never a false `false`, and the two agree
+        // away from the boundary.
+        let d = [[1.0f64, 0.2, -0.1], [1.0, 0.25, -0.05], [1.0, 0.18, -0.02]];
+        let cone = Cone::around(d.iter().map(|&d| ([0.3, -0.2, 0.1], d))).unwrap();
+        assert!(cone.slack < 1e-9, "{}", cone.slack);
+        let (mut inside, mut outside) = (0, 0);
+        let mut x = 0x2545_f491_4f6c_dd1du64;
+        let mut next = || {
+            x ^= x << 13;
+            x ^= x >> 7;
+            x ^= x << 17;
+            (x >> 11) as f64 / (1u64 << 53) as f64
+        };
+        for _ in 0..20000 {
+            let c = [
+                0.3 + 6.0 * next(),
+                -0.2 + 3.0 * next() - 1.0,
+                0.1 + 3.0 * next() - 1.5,
+            ];
+            let h = 0.2 * next();
+            let (lo, hi) = (c.map(|v| v - h), c.map(|v| v + h));
+            let v = [0, 1, 2].map(|a| c[a] - cone.o[a]);
+            let (l, r) = (dot(v, v).sqrt(), 3f64.sqrt() * h);
+            let ang = (dot(v, cone.axis) / l).clamp(-1.0, 1.0).acos();
+            let margin = ang - (cone.half + (r / l).min(1.0).asin());
+            let meets = cone.meets(lo, hi);
+            if l <= r || margin <= 0.0 {
+                assert!(meets, "false false at {c:?} {h}");
+                inside += 1;
+            } else if margin > 1e-6 {
+                assert!(!meets, "{c:?} {h}: margin {margin}");
+                outside += 1;
+            }
+        }
+        assert!(inside > 500 && outside > 1000, "{inside} {outside}");
     }
 }

@@ -74,6 +74,21 @@ impl Default for CastParams {
     }
 }
 
+impl CastParams {
+    /// These params for ray `i` of a cast with per-ray starts `near` (the
+    /// beam's, [`super::beam`]): `near[i]` in place of `self.near`.
+    #[inline(always)]
+    pub fn for_ray(&self, near: Option<&[f64]>, i: usize) -> CastParams {
+        match near {
+            Some(n) => CastParams {
+                near: n[i],
+                ..*self
+            },
+            None => *self,
+        }
+    }
+}
+
 /// What one cast found. On a miss `t = -1`, voxel and normal are zero.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct CastHit<F> {

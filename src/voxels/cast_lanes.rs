@@ -83,17 +83,21 @@ impl LaneIsa {
 
 /// Every ray `(o[i], d[i])` cast through `nodes` (addressing `A`) into
 /// `out[i]`, on the widest [`LaneIsa`] this CPU has: the same results as
-/// [`super::cast::cast_with`]`::<f32, A>(.., None)` per ray. Sequential
-/// (the caller fans chunks out).
+/// [`super::cast::cast_with`]`::<f32, A>(.., None)` per ray, with `p.near`
+/// replaced by `near[i]` when `near` is given (the beam's starts; an
+/// infinite one answers a miss at once). Sequential (the caller fans
+/// chunks out).
 pub fn cast_lanes<A: Addressing>(
     nodes: &[u32],
     depth: u32,
     o: &[[f32; 3]],
     d: &[[f32; 3]],
     p: &CastParams,
+    near: Option<&[f64]>,
     out: &mut [CastHit<f32>],
 ) {
-    cast_lanes_on::<A>(LaneIsa::detect(nodes.len()), nodes, depth, o, d, p, out)
+    let isa = LaneIsa::detect(nodes.len());
+    cast_lanes_on::<A>(isa, nodes, depth, o, d, p, near, out)
 }
 
 /// Every ray cast by [`cast_lanes_on`] on `isa`, in parallel chunks (the
@@ -107,12 +111,13 @@ pub fn cast_all_lanes_on<A: Addressing>(
     p: &CastParams,
 ) -> VoxelHits<f32> {
     cast_chunks("voxels.cast_lanes", o.len(), GRAIN, |r, out| {
-        cast_lanes_on::<A>(isa, nodes, depth, &o[r.clone()], &d[r], p, out)
+        cast_lanes_on::<A>(isa, nodes, depth, &o[r.clone()], &d[r], p, None, out)
     })
 }
 
 /// [`cast_lanes`] on `isa`, which must be one of
 /// [`LaneIsa::available`]`(nodes.len())` (else the SSE cast runs).
+#[allow(clippy::too_many_arguments)]
 pub fn cast_lanes_on<A: Addressing>(
     isa: LaneIsa,
     nodes: &[u32],
@@ -120,6 +125,7 @@ pub fn cast_lanes_on<A: Addressing>(
     o: &[[f32; 3]],
     d: &[[f32; 3]],
     p: &CastParams,
+    near: Option<&[f64]>,
     out: &mut [CastHit<f32>],
 ) {
     let isa = isa.min(LaneIsa::detect(nodes.len()));
@@ -127,13 +133,17 @@ pub fn cast_lanes_on<A: Addressing>(
     // an i32 gather index (both checked by `LaneIsa::detect`).
     #[cfg(target_arch = "x86_64")]
     match isa {
-        LaneIsa::Avx512 => return unsafe { avx2::stream_avx512::<A>(nodes, depth, o, d, p, out) },
-        LaneIsa::Avx2 => return unsafe { avx2::stream_avx2::<A>(nodes, depth, o, d, p, out) },
+        LaneIsa::Avx512 => {
+            return unsafe { avx2::stream_avx512::<A>(nodes, depth, o, d, p, near, out) }
+        }
+        LaneIsa::Avx2 => {
+            return unsafe { avx2::stream_avx2::<A>(nodes, depth, o, d, p, near, out) }
+        }
         LaneIsa::Sse => {}
     }
     let _ = isa;
     for (i, h) in out.iter_mut().enumerate() {
-        *h = cast_sse::<A>(nodes, depth, o[i], d[i], p);
+        *h = cast_sse::<A>(nodes, depth, o[i], d[i], &p.for_ray(near, i));
     }
 }
 
@@ -268,6 +278,7 @@ mod avx2 {
     struct Queue<'r> {
         o: &'r [[f32; 3]],
         d: &'r [[f32; 3]],
+        near: Option<&'r [f64]>,
         next: usize,
         end: usize,
         ray: [usize; W],
@@ -282,7 +293,13 @@ mod avx2 {
             while self.next < self.end {
                 let i = self.next;
                 self.next += 1;
-                match start(self.o[i], self.d[i], p) {
+                let q = p.for_ray(self.near, i);
+                if q.near == f64::INFINITY {
+                    // A beam tile that meets nothing ([`crate::voxels::beam`]).
+                    out[i] = CastHit::miss(0, false);
+                    continue;
+                }
+                match start(self.o[i], self.d[i], &q) {
                     Some(st) => {
                         s.load(l, &st);
                         self.ray[l] = i;
@@ -414,9 +431,10 @@ mod avx2 {
         o: &[[f32; 3]],
         d: &[[f32; 3]],
         p: &CastParams,
+        near: Option<&[f64]>,
         out: &mut [CastHit<f32>],
     ) {
-        stream::<A>(nodes, depth, o, d, p, out)
+        stream::<A>(nodes, depth, o, d, p, near, out)
     }
 
     /// [`stream`] compiled with AVX-512F/VL as well (32 vector registers,
@@ -432,9 +450,10 @@ mod avx2 {
         o: &[[f32; 3]],
         d: &[[f32; 3]],
         p: &CastParams,
+        near: Option<&[f64]>,
         out: &mut [CastHit<f32>],
     ) {
-        stream::<A>(nodes, depth, o, d, p, out)
+        stream::<A>(nodes, depth, o, d, p, near, out)
     }
 
     /// Streams the rays `(o[i], d[i])` through [`G`] groups of lanes (the
@@ -451,6 +470,7 @@ mod avx2 {
         o: &[[f32; 3]],
         d: &[[f32; 3]],
         p: &CastParams,
+        near: Option<&[f64]>,
         out: &mut [CastHit<f32>],
     ) {
         let k = Consts {
@@ -470,7 +490,8 @@ mod avx2 {
             ),
         };
         let n = o.len();
-        let mut g: [Group; G] = std::array::from_fn(|j| group(o, d, j * n / G, (j + 1) * n / G));
+        let mut g: [Group; G] =
+            std::array::from_fn(|j| group(o, d, near, j * n / G, (j + 1) * n / G));
         for g in g.iter_mut() {
             for l in 0..W {
                 g.q.refill(&mut g.s, l, p, out);
@@ -495,6 +516,7 @@ mod avx2 {
     unsafe fn group<'r>(
         o: &'r [[f32; 3]],
         d: &'r [[f32; 3]],
+        near: Option<&'r [f64]>,
         start: usize,
         end: usize,
     ) -> Group<'r> {
@@ -522,6 +544,7 @@ mod avx2 {
             q: Queue {
                 o,
                 d,
+                near,
                 next: start,
                 end,
                 ray: [usize::MAX; W],
@@ -681,7 +704,10 @@ mod avx2 {
                 } else if stop_m >> l & 1 != 0 {
                     let stop = s.stop(l, leaf_m >> l & 1 != 0);
                     match &q.starts[l] {
-                        Some(st) => finish::<f32, A>(nodes, depth, o[i], d[i], p, st, &stop),
+                        Some(st) => {
+                            let p = p.for_ray(q.near, i);
+                            finish::<f32, A>(nodes, depth, o[i], d[i], &p, st, &stop)
+                        }
                         None => CastHit::miss(it, false),
                     }
                 } else {
@@ -709,7 +735,7 @@ mod tests {
         let (o, d) = hard_rays(6000, 9);
         for isa in LaneIsa::available(nodes.len()) {
             let mut lanes = vec![CastHit::miss(0, false); o.len()];
-            cast_lanes_on::<A>(isa, nodes, depth, &o, &d, p, &mut lanes);
+            cast_lanes_on::<A>(isa, nodes, depth, &o, &d, p, None, &mut lanes);
             for i in 0..o.len() {
                 let a = cast_with::<f32, A>(nodes, depth, o[i], d[i], p, None);
                 let b = lanes[i];

@@ -32,13 +32,15 @@ pub trait CastReal: Real {
     const SIMD: bool = false;
     /// The lane cast ([`super::cast_lanes`]) of rays `(o[i], d[i])` into
     /// `out[i]` in f32 (bit-identical to [`super::cast::cast_with`] without
-    /// contours); nothing in other precisions.
+    /// contours; per-ray starts `near[i]` when given); nothing in other
+    /// precisions.
     fn cast_lanes<A: Addressing>(
         _nodes: &[u32],
         _depth: u32,
         _o: &[[Self; 3]],
         _d: &[[Self; 3]],
         _p: &CastParams,
+        _near: Option<&[f64]>,
         _out: &mut [CastHit<Self>],
     ) {
     }
@@ -76,9 +78,10 @@ impl CastReal for f32 {
         o: &[[f32; 3]],
         d: &[[f32; 3]],
         p: &CastParams,
+        near: Option<&[f64]>,
         out: &mut [CastHit<f32>],
     ) {
-        super::cast_lanes::cast_lanes::<A>(nodes, depth, o, d, p, out)
+        super::cast_lanes::cast_lanes::<A>(nodes, depth, o, d, p, near, out)
     }
 }
 

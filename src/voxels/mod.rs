@@ -34,6 +34,7 @@ pub mod referee_mesh;
 pub mod render;
 pub mod shape;
 pub mod through;
+pub mod tiles;
 pub mod voxelise;
 
 #[cfg(test)]

@@ -116,7 +116,7 @@ mod tests {
             let (o, d) = incoherent_in::<f32>(4000, depth);
             let p = CastParams::default();
             let mut lanes = vec![CastHit::miss(0, false); o.len()];
-            cast_lanes::<Absolute>(&b.nodes, depth, &o, &d, &p, &mut lanes);
+            cast_lanes::<Absolute>(&b.nodes, depth, &o, &d, &p, None, &mut lanes);
             for i in 0..o.len() {
                 let a = cast_dag::<f32>(&g.nodes, depth, o[i], d[i], &p);
                 let c = cast_dag::<f32>(&b.nodes, depth, o[i], d[i], &p);

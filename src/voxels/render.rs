@@ -185,7 +185,7 @@ pub fn cast_all_lanes<F: CastReal, A: Addressing>(
 ) -> Option<VoxelHits<F>> {
     F::SIMD.then(|| {
         cast_chunks("voxels.cast_lanes", o.len(), GRAIN, |r, out| {
-            F::cast_lanes::<A>(nodes, depth, &o[r.clone()], &d[r], p, out)
+            F::cast_lanes::<A>(nodes, depth, &o[r.clone()], &d[r], p, None, out)
         })
     })
 }

@@ -30,9 +30,10 @@ pub enum CastPath {
     /// [`super::cast_sse`]: one ray at a time, its three axes in one SSE
     /// register, identical results (f32 only).
     Sse,
-    /// [`super::beam`]: each run of rays starts at its conservative beam
-    /// bound, then the SSE cast (f32; the per-ray loop otherwise): identical
-    /// hit, t, leaf, normal, fewer iterations.
+    /// [`super::beam`]: each tile of a camera image starts at its
+    /// conservative beam bound (tiles that meet nothing answered as misses),
+    /// then the lane cast (f32; the per-ray loop otherwise): identical hit,
+    /// t, leaf, normal, fewer iterations.
     Beam,
     /// [`super::cast_lanes`]: eight rays in flight, one per AVX2 lane,
     /// lanes refilled from the stream, identical results (f32 only).
@@ -105,10 +106,12 @@ impl<'a> Through<'a> {
     }
 
     /// [`Through::cast_all`] by `path` (the packet and SSE paths have no
-    /// contours; the SSE path is f32 only).
+    /// contours; the SSE path is f32 only) of rays shaped `shape` (the beam
+    /// path tiles an (H, W) image).
     pub fn cast_by<F: CastReal>(
         &self,
         path: CastPath,
+        shape: &[usize],
         o: &[[F; 3]],
         d: &[[F; 3]],
         p: &CastParams,
@@ -125,12 +128,12 @@ impl<'a> Through<'a> {
                 cast_all_sse::<F, Absolute>(&g.nodes, g.depth, o, d, p)
                     .ok_or_else(|| f32_only(path))
             }
-            (CastPath::Beam, Through::Octree(t)) => {
-                Ok(cast_all_beam::<F, Relative>(&t.nodes, t.depth, o, d, p))
-            }
-            (CastPath::Beam, Through::Dag(g)) => {
-                Ok(cast_all_beam::<F, Absolute>(&g.nodes, g.depth, o, d, p))
-            }
+            (CastPath::Beam, Through::Octree(t)) => Ok(cast_all_beam::<F, Relative>(
+                &t.nodes, t.depth, shape, o, d, p,
+            )),
+            (CastPath::Beam, Through::Dag(g)) => Ok(cast_all_beam::<F, Absolute>(
+                &g.nodes, g.depth, shape, o, d, p,
+            )),
             (CastPath::Lanes, Through::Octree(t)) => {
                 cast_all_lanes::<F, Relative>(&t.nodes, t.depth, o, d, p)
                     .ok_or_else(|| f32_only(path))

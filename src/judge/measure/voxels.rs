@@ -204,7 +204,8 @@ pub fn node_order(dag: &Dag, sc: &VoxelScene, sets: &Sets<f32>, out: &mut Output
         let (mut cpu, mut res) = ([0.0; 2], [VoxelHits::default(), VoxelHits::default()]);
         for _ in 0..ROUNDS {
             for (k, through) in pair.iter().enumerate() {
-                let (h, _, c) = timed(|| through.cast_by(CastPath::Lanes, &b.o, &b.d, &p));
+                let (h, _, c) =
+                    timed(|| through.cast_by(CastPath::Lanes, &b.shape, &b.o, &b.d, &p));
                 (res[k], cpu[k]) = (h?, cpu[k] + c);
             }
         }
@@ -352,7 +353,7 @@ pub fn cpu_vs_gpu(
             let mut res: Vec<VoxelHits<f32>> = vec![VoxelHits::default(); acc.len()];
             for _ in 0..ROUNDS {
                 for (k, path) in CastPath::ALL.into_iter().enumerate() {
-                    let (h, wall, cpu) = timed(|| through.cast_by(path, &b.o, &b.d, &p));
+                    let (h, wall, cpu) = timed(|| through.cast_by(path, &b.shape, &b.o, &b.d, &p));
                     res[k] = h?;
                     acc[k] = (acc[k].0 + wall, acc[k].1 + cpu);
                 }

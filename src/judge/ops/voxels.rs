@@ -95,7 +95,7 @@ fn render_in<F: CastReal>(
     ctx.budget.check("voxels.render outputs", bytes)?;
     let p = b.params(sc.lod, sc.max_iter);
     let path: CastPath = ctx.param_or("cast", CastPath::PerRay)?;
-    let (h, secs, _) = timed(|| th.cast_by::<F>(path, &b.o, &b.d, &p));
+    let (h, secs, _) = timed(|| th.cast_by::<F>(path, &b.shape, &b.o, &b.d, &p));
     let h = h?;
     let mut out = Outputs::default();
     let hits = h.hit.iter().map(|&x| x as u64).sum();
