@@ -1,8 +1,9 @@
 //! The beam pre-pass (Laine & Karras 2010, "beam optimization"), made
 //! conservative: each tile of [`TILE`] x [`TILE`] pixels of a camera image
-//! (rays shaped (H, W); runs of `TILE^2` consecutive rays otherwise) whose
-//! rays share one origin is bounded by the narrowest cone about their mean
-//! direction ([`Cone::around`]); a walk of the tree finds the smallest
+//! (rays shaped (H, W); runs of `TILE^2` consecutive rays otherwise,
+//! [`Tiling`]) whose rays share one origin is bounded by a cone about the
+//! sum of its first and last directions that holds every one of them
+//! ([`ConeAcc`], [`Cone::around`]); a walk of the tree finds the smallest
 //! distance from the origin to a non-empty node box that meets the cone
 //! ([`start_distance`]). A tile whose cone meets no non-empty box is
 //! answered as misses without a cast; every other ray's cast starts at the
@@ -14,11 +15,13 @@
 //! cone (the ray is in it); so some box the walk accepts contains it, and
 //! its distance from the origin, `t |d|`, is at least that box's distance.
 //! The walk prunes only boxes that are empty, miss the cone (bounding-sphere
-//! test, the sphere grown by the cast's rounding, [`Cone::slack`]) or lie
-//! farther than the best box found; so a tile it finds nothing for holds no
-//! ray the cast could find a hit on. The start is pulled back by [`MARGIN`]
-//! (relative) and by a bound on the rounding of the cast's plane times
-//! ([`plane_time_error`]), so the cast begins strictly in the empty space
+//! test, the sphere grown by twice the distance the cast's rounding can move
+//! a ray, [`Cone::slack`], so a voxel the f32 cast finds on a ray is in a
+//! grown box the cone meets) or lie farther than the best box found; so a
+//! tile it finds nothing for holds no ray the cast could find a hit on. The
+//! start is pulled back by [`MARGIN`] (relative) and by the tile's bound on
+//! the rounding of the cast's plane times ([`Cone::time_error`], from
+//! [`plane_time_error`]), so the cast begins strictly in the empty space
 //! before its first solid voxel even as its own f32 arithmetic sees it,
 //! and it then makes the same decisions as the cast from `near` from that
 //! voxel on: same `hit`, `t`, `leaf`, `normal` (bit for bit; fewer

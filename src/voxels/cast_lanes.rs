@@ -293,13 +293,13 @@ mod avx2 {
             while self.next < self.end {
                 let i = self.next;
                 self.next += 1;
-                let q = p.for_ray(self.near, i);
-                if q.near == f64::INFINITY {
+                let st = match self.near {
+                    None => start(self.o[i], self.d[i], p),
                     // A beam tile that meets nothing ([`crate::voxels::beam`]).
-                    out[i] = CastHit::miss(0, false);
-                    continue;
-                }
-                match start(self.o[i], self.d[i], &q) {
+                    Some(n) if n[i] == f64::INFINITY => None,
+                    Some(n) => start(self.o[i], self.d[i], &p.for_ray(Some(n), i)),
+                };
+                match st {
                     Some(st) => {
                         s.load(l, &st);
                         self.ray[l] = i;
