@@ -3,7 +3,7 @@
 //! (rays shaped (H, W); runs of `TILE^2` consecutive rays otherwise,
 //! [`Tiling`]) whose rays share one origin is bounded by a cone about the
 //! sum of its first and last directions that holds every one of them
-//! ([`ConeAcc`], [`Cone::around`]); a walk of the tree finds the smallest
+//! ([`ConeAcc`]); a walk of the tree finds the smallest
 //! distance from the origin to a non-empty node box that meets the cone
 //! ([`start_distance`]). A tile whose cone meets no non-empty box is
 //! answered as misses without a cast; every other ray's cast starts at the
@@ -134,26 +134,6 @@ impl<F: CastReal> ConeAcc<F> {
 }
 
 impl Cone {
-    /// The cone of `rays` (pairs `(o, d)`, walked twice) about the sum of
-    /// their first and last directions ([`ConeAcc`]).
-    pub fn around<F: CastReal>(
-        rays: impl Iterator<Item = ([F; 3], [F; 3])> + Clone,
-    ) -> Option<Cone> {
-        let (o0, first) = rays.clone().next()?;
-        let (_, last) = rays.clone().last()?;
-        let mut acc = ConeAcc::new(o0, [0, 1, 2].map(|a| first[a].f64() + last[a].f64()))?;
-        rays.for_each(|(o, d)| acc.add(o, d));
-        acc.finish()
-    }
-
-    /// Whether the box `[lo, hi]`, grown by `slack`, may meet the cone
-    /// (exact for its bounding sphere, so never a false `false`).
-    pub fn meets(&self, lo: [f64; 3], hi: [f64; 3]) -> bool {
-        let v = [0, 1, 2].map(|a| 0.5 * (lo[a] + hi[a]) - self.o[a]);
-        let e = [0, 1, 2].map(|a| hi[a] - lo[a]);
-        self.meets_sphere(v, 0.5 * dot(e, e).sqrt())
-    }
-
     /// Whether the ball of radius `r + slack` about `o + v` may meet the
     /// cone. Seen from `o` (at distance `l`) the ball covers the
     /// directions within `asin(r / l)` of `v`, and two such caps meet when
@@ -173,12 +153,7 @@ impl Cone {
     }
 }
 
-/// Euclidean distance from `o` to the box `[lo, hi]` (0 inside).
-pub fn box_distance(o: [f64; 3], lo: [f64; 3], hi: [f64; 3]) -> f64 {
-    box_distance2(o, lo, hi).sqrt()
-}
-
-/// [`box_distance`] squared.
+/// The squared Euclidean distance from `o` to the box `[lo, hi]` (0 inside).
 #[inline]
 fn box_distance2(o: [f64; 3], lo: [f64; 3], hi: [f64; 3]) -> f64 {
     let g = [0, 1, 2].map(|a| (lo[a] - o[a]).max(o[a] - hi[a]).max(0.0));
@@ -396,6 +371,25 @@ mod tests {
     use crate::voxels::render::{cast_all, cast_all_dag};
     use crate::voxels::shape::Shape;
 
+    /// The cone of `rays` about the sum of their first and last directions,
+    /// as `band_cones` builds a tile's.
+    fn cone_around<F: CastReal>(
+        rays: impl Iterator<Item = ([F; 3], [F; 3])> + Clone,
+    ) -> Option<Cone> {
+        let (o0, first) = rays.clone().next()?;
+        let (_, last) = rays.clone().last()?;
+        let mut acc = ConeAcc::new(o0, [0, 1, 2].map(|a| first[a].f64() + last[a].f64()))?;
+        rays.for_each(|(o, d)| acc.add(o, d));
+        acc.finish()
+    }
+
+    /// [`Cone::meets_sphere`] for the bounding sphere of the box `[lo, hi]`.
+    fn meets_box(cone: &Cone, lo: [f64; 3], hi: [f64; 3]) -> bool {
+        let v = [0, 1, 2].map(|a| 0.5 * (lo[a] + hi[a]) - cone.o[a]);
+        let e = [0, 1, 2].map(|a| hi[a] - lo[a]);
+        cone.meets_sphere(v, 0.5 * dot(e, e).sqrt())
+    }
+
     fn camera_rays<F: Real>(size: u32) -> Batch<F> {
         let cam =
             Camera::pinhole_look_at([2.0, 1.5, 2.5], [0.0; 3], [0.0, 1.0, 0.0], 45.0, size, size)
@@ -510,20 +504,20 @@ mod tests {
         // No axis of a direction near zero: the cast's rounding bound (the
         // cone's slack) stays tiny.
         let d = [[1.0f64, 0.01, 0.01], [1.0, 0.1, 0.01], [1.0, 0.01, 0.1]];
-        let cone = Cone::around(d.iter().map(|&d| ([0.0; 3], d))).unwrap();
+        let cone = cone_around(d.iter().map(|&d| ([0.0; 3], d))).unwrap();
         // A tiny box on the ray (1, 0.1, 0.01) at distance ~5.
         let c = [5.0, 0.5, 0.05];
-        assert!(cone.meets(c.map(|x| x - 1e-3), c.map(|x| x + 1e-3)));
+        assert!(meets_box(&cone, c.map(|x| x - 1e-3), c.map(|x| x + 1e-3)));
         // A box well outside, behind, and one holding the origin.
-        assert!(!cone.meets([5.0, 3.0, 3.0], [5.1, 3.1, 3.1]));
-        assert!(!cone.meets([-5.1, 0.0, 0.0], [-5.0, 0.1, 0.1]));
-        assert!(cone.meets([-1.0; 3], [1.0; 3]));
+        assert!(!meets_box(&cone, [5.0, 3.0, 3.0], [5.1, 3.1, 3.1]));
+        assert!(!meets_box(&cone, [-5.1, 0.0, 0.0], [-5.0, 0.1, 0.1]));
+        assert!(meets_box(&cone, [-1.0; 3], [1.0; 3]));
         assert_eq!(
-            box_distance([0.0; 3], [3.0, -1.0, 4.0], [5.0, 1.0, 6.0]),
-            5.0
+            box_distance2([0.0; 3], [3.0, -1.0, 4.0], [5.0, 1.0, 6.0]),
+            25.0
         );
         let origins = [[0.0; 3], [1.0, 0.0, 0.0]];
-        assert!(Cone::around(origins.into_iter().zip(d)).is_none());
+        assert!(cone_around(origins.into_iter().zip(d)).is_none());
     }
 
     #[test]
@@ -532,7 +526,7 @@ mod tests {
         // scattered about a cone: never a false `false`, and the two agree
         // away from the boundary.
         let d = [[1.0f64, 0.2, -0.1], [1.0, 0.25, -0.05], [1.0, 0.18, -0.02]];
-        let cone = Cone::around(d.iter().map(|&d| ([0.3, -0.2, 0.1], d))).unwrap();
+        let cone = cone_around(d.iter().map(|&d| ([0.3, -0.2, 0.1], d))).unwrap();
         assert!(cone.slack < 1e-9, "{}", cone.slack);
         let (mut inside, mut outside) = (0, 0);
         let mut x = 0x2545_f491_4f6c_dd1du64;
@@ -554,7 +548,7 @@ mod tests {
             let (l, r) = (dot(v, v).sqrt(), 3f64.sqrt() * h);
             let ang = (dot(v, cone.axis) / l).clamp(-1.0, 1.0).acos();
             let margin = ang - (cone.half + (r / l).min(1.0).asin());
-            let meets = cone.meets(lo, hi);
+            let meets = meets_box(&cone, lo, hi);
             if l <= r || margin <= 0.0 {
                 assert!(meets, "false false at {c:?} {h}");
                 inside += 1;

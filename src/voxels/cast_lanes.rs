@@ -297,7 +297,7 @@ mod avx2 {
                     None => start(self.o[i], self.d[i], p),
                     // A beam tile that meets nothing ([`crate::voxels::beam`]).
                     Some(n) if n[i] == f64::INFINITY => None,
-                    Some(n) => start(self.o[i], self.d[i], &p.for_ray(Some(n), i)),
+                    Some(n) => start(self.o[i], self.d[i], &CastParams { near: n[i], ..*p }),
                 };
                 match st {
                     Some(st) => {

@@ -61,15 +61,6 @@ impl Tiling {
         (band.start..band.end).step_by(self.width)
     }
 
-    /// The rays of band `b`'s tile `j` (counted across), in order.
-    pub fn rays(&self, b: usize, j: usize) -> Vec<usize> {
-        let cols = self.columns().get(j).cloned().unwrap_or(0..0);
-        self.rows(b)
-            .flat_map(|row| cols.clone().map(move |x| row + x))
-            .filter(|&i| i < self.n)
-            .collect()
-    }
-
     /// How many tiles a band has.
     pub fn across(&self) -> usize {
         self.width.div_ceil(self.tw)
@@ -94,6 +85,15 @@ impl Tiling {
 mod tests {
     use super::*;
 
+    /// The rays of band `b`'s tile `j` (counted across), in order.
+    fn rays(t: &Tiling, b: usize, j: usize) -> Vec<usize> {
+        let cols = t.columns().get(j).cloned().unwrap_or(0..0);
+        t.rows(b)
+            .flat_map(|row| cols.clone().map(move |x| row + x))
+            .filter(|&i| i < t.n)
+            .collect()
+    }
+
     #[test]
     fn tiles_cover_every_ray_once() {
         for (shape, tile) in [(vec![10, 13], 4), (vec![16, 16], 8), (vec![37], 3)] {
@@ -104,7 +104,7 @@ mod tests {
             for b in 0..t.bands() {
                 let mut of = vec![usize::MAX; n];
                 for j in 0..t.across() {
-                    for i in t.rays(b, j) {
+                    for i in rays(&t, b, j) {
                         assert!(t.band(b).contains(&i), "{shape:?} tile {j} ray {i}");
                         seen[i] += 1;
                         of[i] = j;
@@ -122,7 +122,7 @@ mod tests {
         }
         // A 4x4 tile of a 13-wide image holds rows of 4 pixels.
         assert_eq!(
-            Tiling::new(&[10, 13], 130, 4).rays(0, 1)[..5],
+            rays(&Tiling::new(&[10, 13], 130, 4), 0, 1)[..5],
             [4, 5, 6, 7, 17]
         );
     }
