@@ -1,0 +1,370 @@
+//! The lane loop's frame, shared by its instruction sets: the lanes' ESVO
+//! state ([`State`]), the ray queue that refills a lane when its ray ends
+//! ([`Queue`]), the lane groups and the stream that steps them in turn
+//! ([`stream`]), and the answers of finished lanes. What an instruction set
+//! brings is its vectors, its lane masks and its loop iteration
+//! ([`Isa::step`]).
+
+use crate::voxels::cast::{finish, start, Addressing, CastHit, CastParams, Start, Stop, S_MAX};
+
+/// Lane groups per stream. Measured in one run (shared machine, 30
+/// interleaved rounds, sphere d10 and Menger d10, octree and DAG, 2^18
+/// rays, docs/PERF.md): one group 0.91-0.97x of two, four 0.96-1.02x of
+/// two; with the descriptor prefetch (12 interleaved rounds, loaded shared
+/// machine) three groups 0.92-1.09x of two, four 0.93-1.09x.
+const G: usize = 2;
+
+/// The most lanes an instruction set has.
+pub(super) const W_MAX: usize = 16;
+
+/// Stack entries per lane (scales 0..=S_MAX).
+pub(super) const SD: usize = S_MAX as usize + 1;
+
+/// The stack entry after every lane's: the target of the lanes that do
+/// not write at a PUSH (the sets' `push_stack`); never read.
+pub(super) const SPARE: usize = W_MAX * SD;
+
+/// Entries of a group's stack: lane `l`'s entry for scale `s` at
+/// `l * SD + s`, then [`SPARE`].
+pub(super) const STACK: usize = SPARE + 1;
+
+/// An instruction set of the lane loop.
+pub(super) trait Isa: Sized {
+    /// Lanes: one ray each (at most [`W_MAX`]).
+    const W: usize;
+    /// `W` f32.
+    type F: Copy;
+    /// `W` i32.
+    type I: Copy;
+    /// One flag per lane.
+    type M: Copy;
+
+    /// Every lane `x`.
+    unsafe fn splat_f(x: f32) -> Self::F;
+    /// Every lane `x`.
+    unsafe fn splat_i(x: i32) -> Self::I;
+    /// Lane `l` holds `l * SD`.
+    unsafe fn lane_base() -> Self::I;
+    /// No lane.
+    fn none() -> Self::M;
+    /// The mask as bits, lane `l` at bit `l`.
+    fn bits(m: Self::M) -> u32;
+    /// Sets or clears lane `l` of `m`.
+    fn set(m: &mut Self::M, l: usize, on: bool);
+    /// The lanes of `v`.
+    fn f_lanes(v: &mut Self::F) -> &mut [f32];
+    /// The lanes of `v`.
+    fn i_lanes(v: &mut Self::I) -> &mut [i32];
+    /// One loop iteration of every live lane of `g`, then the answers of the
+    /// lanes whose ray ended ([`answer`]).
+    unsafe fn step<A: Addressing>(g: &mut Group<Self>, k: &Consts<Self>, out: &mut [CastHit<f32>]);
+}
+
+/// The lanes' ESVO state, one lane per ray (`act`: the lanes that hold a
+/// ray).
+pub(super) struct State<V: Isa> {
+    pub pos: [V::F; 3],
+    pub coef: [V::F; 3],
+    pub bias: [V::F; 3],
+    pub t_min: V::F,
+    pub t_max: V::F,
+    pub h: V::F,
+    pub se: V::F,
+    pub octant: V::I,
+    pub parent: V::I,
+    pub desc: V::I,
+    pub idx: V::I,
+    pub scale: V::I,
+    pub iters: V::I,
+    pub act: V::M,
+}
+
+impl<V: Isa> State<V> {
+    /// Every lane idle.
+    #[inline(always)]
+    unsafe fn idle() -> Self {
+        let (zf, zi) = (V::splat_f(0.0), V::splat_i(0));
+        State {
+            pos: [zf; 3],
+            coef: [zf; 3],
+            bias: [zf; 3],
+            t_min: zf,
+            t_max: zf,
+            h: zf,
+            se: zf,
+            octant: zi,
+            parent: zi,
+            desc: zi,
+            idx: zi,
+            scale: zi,
+            iters: zi,
+            act: V::none(),
+        }
+    }
+
+    /// Lane `l` set up for the ray with start `s`.
+    #[inline(always)]
+    fn load(&mut self, l: usize, s: &Start<f32>) {
+        for a in 0..3 {
+            V::f_lanes(&mut self.pos[a])[l] = s.pos[a];
+            V::f_lanes(&mut self.coef[a])[l] = s.coef[a];
+            V::f_lanes(&mut self.bias[a])[l] = s.bias[a];
+        }
+        V::f_lanes(&mut self.t_min)[l] = s.t_min;
+        V::f_lanes(&mut self.t_max)[l] = s.t_max;
+        V::f_lanes(&mut self.h)[l] = s.h;
+        V::f_lanes(&mut self.se)[l] = 0.5;
+        V::i_lanes(&mut self.octant)[l] = s.octant as i32;
+        V::i_lanes(&mut self.parent)[l] = 0;
+        V::i_lanes(&mut self.desc)[l] = 0;
+        V::i_lanes(&mut self.idx)[l] = s.idx as i32;
+        V::i_lanes(&mut self.scale)[l] = S_MAX - 1;
+        V::i_lanes(&mut self.iters)[l] = 0;
+        V::set(&mut self.act, l, true);
+    }
+
+    /// Lane `l`'s [`Stop`] at its current voxel.
+    #[inline(always)]
+    fn stop(&mut self, l: usize, leaf: bool) -> Stop<f32> {
+        Stop {
+            leaf,
+            pos: [0, 1, 2].map(|a| V::f_lanes(&mut self.pos[a])[l]),
+            scale: V::i_lanes(&mut self.scale)[l],
+            scale_exp2: V::f_lanes(&mut self.se)[l],
+            t_min: V::f_lanes(&mut self.t_min)[l],
+            parent: V::i_lanes(&mut self.parent)[l] as u32 as usize,
+            desc: V::i_lanes(&mut self.desc)[l] as u32,
+            idx: V::i_lanes(&mut self.idx)[l] as u32,
+            contour_hit: None,
+            iters: V::i_lanes(&mut self.iters)[l] as u32,
+        }
+    }
+}
+
+/// Bits of a lane mask, lowest first.
+#[inline(always)]
+fn bits(mut m: u32) -> impl Iterator<Item = usize> {
+    std::iter::from_fn(move || {
+        (m != 0).then(|| {
+            let l = m.trailing_zeros() as usize;
+            m &= m - 1;
+            l
+        })
+    })
+}
+
+/// The rays waiting for a lane, and which ray each lane holds.
+pub(super) struct Queue<'r> {
+    pub o: &'r [[f32; 3]],
+    pub d: &'r [[f32; 3]],
+    near: Option<&'r [f64]>,
+    next: usize,
+    end: usize,
+    ray: [usize; W_MAX],
+    starts: [Option<Start<f32>>; W_MAX],
+}
+
+impl Queue<'_> {
+    /// Fills lane `l` of `s` with the next ray that enters the root box
+    /// (rays that miss it are answered at once); the lane goes idle when
+    /// none is left.
+    fn refill<V: Isa>(
+        &mut self,
+        s: &mut State<V>,
+        l: usize,
+        p: &CastParams,
+        out: &mut [CastHit<f32>],
+    ) {
+        while self.next < self.end {
+            let i = self.next;
+            self.next += 1;
+            let st = match self.near {
+                None => start(self.o[i], self.d[i], p),
+                // A beam tile that meets nothing ([`crate::voxels::beam`]).
+                Some(n) if n[i] == f64::INFINITY => None,
+                Some(n) => start(self.o[i], self.d[i], &CastParams { near: n[i], ..*p }),
+            };
+            match st {
+                Some(st) => {
+                    s.load(l, &st);
+                    self.ray[l] = i;
+                    self.starts[l] = Some(st);
+                    return;
+                }
+                None => out[i] = CastHit::miss(0, false),
+            }
+        }
+        self.ray[l] = usize::MAX;
+        V::set(&mut s.act, l, false);
+        V::i_lanes(&mut s.parent)[l] = 0;
+    }
+}
+
+/// Loop constants of a stream.
+pub(super) struct Consts<'n, V: Isa> {
+    pub nodes: &'n [u32],
+    pub depth: u32,
+    pub p: &'n CastParams,
+    pub lod: Option<(V::F, V::F)>,
+    pub max_iter: V::I,
+    pub lane_base: V::I,
+}
+
+/// One set of `V::W` lanes: their state, stacks and ray queue.
+pub(super) struct Group<'r, V: Isa> {
+    pub s: State<V>,
+    pub stack_node: [i32; STACK],
+    pub stack_tmax: [f32; STACK],
+    pub q: Queue<'r>,
+}
+
+/// Starts the load of each lane's descriptor `nodes[2 * slot]` (PUSH's
+/// prefetch: the next step of this group gathers it, after the other
+/// groups' steps, so the miss overlaps their work instead of stalling the
+/// loop). Every lane prefetches, the sets passing their non-pushing lanes'
+/// own parent (cached): no branch on the lane mask (a loop over its bits
+/// mispredicts; measured at [`write_stack`]).
+#[inline(always)]
+pub(super) fn prefetch<V: Isa>(base: *const i32, mut slot: V::I) {
+    for &a in V::i_lanes(&mut slot).iter() {
+        let p = base.wrapping_add(2 * a as u32 as usize) as *const i8;
+        // SAFETY: a prefetch does not fault, whatever the address.
+        unsafe { std::arch::x86_64::_mm_prefetch::<{ std::arch::x86_64::_MM_HINT_T0 }>(p) };
+    }
+}
+
+/// PUSH's stack write: lane `l`'s `parent` and `t_max` at entry `at[l]`,
+/// its own `l * SD + scale` on the lanes that write and [`SPARE`] on the
+/// others, so the write has no branch on the lane mask. Measured in one
+/// process against a loop over the mask's bits (thread CPU time, medians of
+/// 7-9 interleaved rounds, 2^18 rays, sphere d10 and Menger d10, shared
+/// 2-core Zen 4, docs/PERF.md ninth session): coherent 1.07-1.30x,
+/// incoherent 0.90-1.16x, 0 differing rays; AVX-512's masked scatter in
+/// its place was 1.00-1.03x of these stores on the octree and 0.86-0.94x
+/// on the DAG.
+#[inline(always)]
+pub(super) fn write_stack<V: Isa>(
+    mut at: V::I,
+    mut parent: V::I,
+    mut t_max: V::F,
+    stack_node: &mut [i32; STACK],
+    stack_tmax: &mut [f32; STACK],
+) {
+    let (at, pv, tv) = (
+        V::i_lanes(&mut at),
+        V::i_lanes(&mut parent),
+        V::f_lanes(&mut t_max),
+    );
+    for l in 0..V::W {
+        // `at` is `l * SD + scale` (scale < SD while the lane pushes) or
+        // SPARE: within both stacks.
+        let k = at[l] as usize;
+        stack_node[k] = pv[l];
+        stack_tmax[k] = tv[l];
+    }
+}
+
+/// The masks of a step's lanes whose ray ended (`done`), by how: the
+/// iteration cap, a stop (at a `leaf` or at the LOD cut), else an exit.
+pub(super) struct Ended {
+    pub done: u32,
+    pub capped: u32,
+    pub stop: u32,
+    pub leaf: u32,
+}
+
+/// The answers of the lanes in `e.done`, and their refill.
+#[inline(always)]
+pub(super) fn answer<V: Isa, A: Addressing>(
+    g: &mut Group<V>,
+    k: &Consts<V>,
+    e: Ended,
+    out: &mut [CastHit<f32>],
+) {
+    let Group { s, q, .. } = g;
+    let (o, d) = (q.o, q.d);
+    for l in bits(e.done) {
+        let i = q.ray[l];
+        let it = V::i_lanes(&mut s.iters)[l] as u32;
+        out[i] = if e.capped >> l & 1 != 0 {
+            CastHit::miss(it - 1, true)
+        } else if e.stop >> l & 1 != 0 {
+            let stop = s.stop(l, e.leaf >> l & 1 != 0);
+            match &q.starts[l] {
+                Some(st) => {
+                    let p = k.p.for_ray(q.near, i);
+                    finish::<f32, A>(k.nodes, k.depth, o[i], d[i], &p, st, &stop)
+                }
+                None => CastHit::miss(it, false),
+            }
+        } else {
+            CastHit::miss(it, false)
+        };
+        q.refill(s, l, k.p, out);
+    }
+}
+
+/// Streams the rays `(o[i], d[i])` through [`G`] groups of lanes (the
+/// rays split into `G` consecutive runs, one per group), one iteration of
+/// each live group in turn, writing `out[i]`: the groups' loads are
+/// independent, so one group's gathers overlap the others' work.
+///
+/// # Safety
+/// The CPU must have `V`'s instructions and `2 * nodes.len()` must fit an
+/// i32.
+#[inline(always)]
+pub(super) unsafe fn stream<V: Isa, A: Addressing>(
+    nodes: &[u32],
+    depth: u32,
+    o: &[[f32; 3]],
+    d: &[[f32; 3]],
+    p: &CastParams,
+    near: Option<&[f64]>,
+    out: &mut [CastHit<f32>],
+) {
+    let k = Consts::<V> {
+        nodes,
+        depth,
+        p,
+        lod: p.lod.map(|l| {
+            (
+                V::splat_f(l.orig_size as f32 * 0.5),
+                V::splat_f(l.dir_size as f32 * 0.5),
+            )
+        }),
+        max_iter: V::splat_i(p.max_iter.min(i32::MAX as u32) as i32),
+        lane_base: V::lane_base(),
+    };
+    let n = o.len();
+    let mut g: [Group<V>; G] = std::array::from_fn(|j| Group {
+        s: State::idle(),
+        stack_node: [0; STACK],
+        stack_tmax: [0.0; STACK],
+        q: Queue {
+            o,
+            d,
+            near,
+            next: j * n / G,
+            end: (j + 1) * n / G,
+            ray: [usize::MAX; W_MAX],
+            starts: [None; W_MAX],
+        },
+    });
+    for g in g.iter_mut() {
+        for l in 0..V::W {
+            g.q.refill(&mut g.s, l, p, out);
+        }
+    }
+    loop {
+        let mut live = false;
+        for g in g.iter_mut() {
+            if V::bits(g.s.act) != 0 {
+                live = true;
+                V::step::<A>(g, &k, out);
+            }
+        }
+        if !live {
+            return;
+        }
+    }
+}
