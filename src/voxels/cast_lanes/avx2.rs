@@ -53,15 +53,13 @@ impl Isa for Avx2 {
     }
 
     #[inline(always)]
-    fn none() -> __m256i {
-        // SAFETY: SSE2/AVX zeroing has no precondition beyond the target.
-        unsafe { _mm256_setzero_si256() }
+    unsafe fn none() -> __m256i {
+        _mm256_setzero_si256()
     }
 
     #[inline(always)]
-    fn bits(m: __m256i) -> u32 {
-        // SAFETY: only called from code compiled for AVX2.
-        unsafe { mask_i(m) }
+    unsafe fn bits(m: __m256i) -> u32 {
+        mask_i(m)
     }
 
     #[inline(always)]

@@ -57,12 +57,12 @@ impl Isa for Avx512 {
     }
 
     #[inline(always)]
-    fn none() -> __mmask16 {
+    unsafe fn none() -> __mmask16 {
         0
     }
 
     #[inline(always)]
-    fn bits(m: __mmask16) -> u32 {
+    unsafe fn bits(m: __mmask16) -> u32 {
         m as u32
     }
 

@@ -11,7 +11,10 @@ use crate::voxels::cast::{finish, start, Addressing, CastHit, CastParams, Start,
 /// interleaved rounds, sphere d10 and Menger d10, octree and DAG, 2^18
 /// rays, docs/PERF.md): one group 0.91-0.97x of two, four 0.96-1.02x of
 /// two; with the descriptor prefetch (12 interleaved rounds, loaded shared
-/// machine) three groups 0.92-1.09x of two, four 0.93-1.09x.
+/// machine) three groups 0.92-1.09x of two, four 0.93-1.09x. With
+/// sixteen AVX-512 lanes (whose one group's state would fit the 32
+/// registers), one group read 0.94-0.98x of two, and eight AVX2 lanes
+/// 0.88-0.91x (quiet Zen 5, `voxels_gpu_sphere_d10`, two interleaved runs).
 const G: usize = 2;
 
 /// The most lanes an instruction set has.
@@ -28,7 +31,9 @@ pub(super) const SPARE: usize = W_MAX * SD;
 /// `l * SD + s`, then [`SPARE`].
 pub(super) const STACK: usize = SPARE + 1;
 
-/// An instruction set of the lane loop.
+/// An instruction set of the lane loop. Its `unsafe` functions need the
+/// CPU to have the set's instructions (the loop runs only inside the
+/// set's `#[target_feature]` entry, after [`super::LaneIsa::detect`]).
 pub(super) trait Isa: Sized {
     /// Lanes: one ray each (at most [`W_MAX`]).
     const W: usize;
@@ -46,9 +51,9 @@ pub(super) trait Isa: Sized {
     /// Lane `l` holds `l * SD`.
     unsafe fn lane_base() -> Self::I;
     /// No lane.
-    fn none() -> Self::M;
+    unsafe fn none() -> Self::M;
     /// The mask as bits, lane `l` at bit `l`.
-    fn bits(m: Self::M) -> u32;
+    unsafe fn bits(m: Self::M) -> u32;
     /// Sets or clears lane `l` of `m`.
     fn set(m: &mut Self::M, l: usize, on: bool);
     /// The lanes of `v`.
