@@ -1,13 +1,15 @@
 //! `cast_lanes`: the f32 Laine–Karras loop of [`super::cast::cast_with`]
 //! for 8 (AVX2) or 16 (AVX-512) independent rays at once, one ray per
-//! vector lane (issue 15, point 3: many rays in flight). The per-ray SSE cast ([`super::cast_sse`])
-//! is bound by the latency of the descriptor load `nodes[2 * parent]`: each
-//! iteration waits for it, and the branch on it mispredicts. Here each lane
-//! carries its own ESVO state (position, scale, `t_min`/`t_max`, `h`,
-//! parent, descriptor, its own 23-entry stack), and one loop iteration
-//! advances every live lane: the descriptors of all lanes are one gather
-//! (eight or sixteen loads in flight), PUSH, ADVANCE and POP are computed on every lane
-//! and blended by masks (no data-dependent branch in the step), child
+//! vector lane (issue 15, point 3: many rays in flight). The per-ray SSE
+//! cast ([`super::cast_sse`]) is bound by the latency of the descriptor
+//! load `nodes[2 * parent]`: each iteration waits for it, and the branch on
+//! it mispredicts. Here each lane carries its own ESVO state (position,
+//! scale, `t_min`/`t_max`, `h`, parent, descriptor, its own stack of
+//! `S_MAX + 1` entries), and one loop iteration advances every live lane:
+//! the descriptors of all lanes are one gather (eight or sixteen loads in
+//! flight), PUSH, ADVANCE and POP are computed on every lane and blended by
+//! masks (no per-lane branch; the step branches only on whether any lane
+//! pushes, advances, pops or follows a far pointer), child
 //! addresses and POP's stack reads are gathers, a PUSH prefetches each
 //! pushed lane's child descriptor (the group's next step gathers it after
 //! the other group's step has run; on the DAG since the tenth session:
@@ -36,7 +38,7 @@
 //! Sixteen lanes over eight, measured in one run (`hpjudge perf --filter
 //! voxels_gpu_sphere_d10` and `voxels_gpu_menger_d10`, Mrays per CPU-s, the
 //! same rays through both; 2-core AMD EPYC family 26 with full-width
-//! AVX-512, docs/PERF.md fifteenth session): 1.17-1.26x coherent,
+//! AVX-512, docs/PERF.md fifteenth session): 1.15-1.26x coherent,
 //! 1.21-1.36x incoherent, 0 differing rays; the earlier build of the
 //! eight-lane loop with AVX-512 enabled read 1.00-1.04x of AVX2 on that box.
 
@@ -204,6 +206,39 @@ mod tests {
             for p in [CastParams::default(), lod(0.01), interval, capped] {
                 same::<Relative>(&t.nodes, depth, &p, &format!("octree {s:?} {p:?}"));
                 same::<Absolute>(&g.nodes, depth, &p, &format!("dag {s:?} {p:?}"));
+            }
+        }
+    }
+
+    /// Streams of fewer rays than a group has lanes (and just over): the
+    /// groups start and end with idle lanes.
+    #[test]
+    fn short_streams_leave_idle_lanes_and_equal_the_per_ray_cast() {
+        let (s, depth) = scenes().into_iter().next().unwrap();
+        let t = build(&s, depth, &MemBudget::fixed(1 << 30)).unwrap();
+        let (o, d) = hard_rays(40, 5);
+        let p = CastParams::default();
+        for n in [0, 1, 2, 7, 15, 16, 17, 31, 33, 40] {
+            for isa in LaneIsa::available(t.nodes.len()) {
+                let mut lanes = vec![CastHit::miss(99, true); n];
+                cast_lanes_on::<Relative>(
+                    isa,
+                    &t.nodes,
+                    depth,
+                    &o[..n],
+                    &d[..n],
+                    &p,
+                    None,
+                    &mut lanes,
+                );
+                for i in 0..n {
+                    let a = cast_with::<f32, Relative>(&t.nodes, depth, o[i], d[i], &p, None);
+                    assert_eq!(
+                        format!("{a:?}"),
+                        format!("{:?}", lanes[i]),
+                        "{isa:?} n {n} ray {i}"
+                    );
+                }
             }
         }
     }

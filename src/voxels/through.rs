@@ -35,8 +35,9 @@ pub enum CastPath {
     /// then the lane cast (f32; the per-ray loop otherwise): identical hit,
     /// t, leaf, normal, fewer iterations.
     Beam,
-    /// [`super::cast_lanes`]: 8 (AVX2) or 16 (AVX-512) rays in flight, one per lane,
-    /// lanes refilled from the stream, identical results (f32 only).
+    /// [`super::cast_lanes`]: two groups of 8 (AVX2) or 16 (AVX-512) lanes,
+    /// one ray per lane, lanes refilled from the stream, identical results
+    /// (f32 only).
     Lanes,
 }
 

@@ -97,6 +97,7 @@ impl Isa for Avx512 {
     }
 }
 
+/// POP's new `idx`: bit `a` is bit `scale` of axis `a`'s position.
 #[inline(always)]
 unsafe fn pop_idx(pos: &[__m512; 3], scale: __m512i) -> __m512i {
     let mut idx = _mm512_setzero_si512();
@@ -108,6 +109,10 @@ unsafe fn pop_idx(pos: &[__m512; 3], scale: __m512i) -> __m512i {
     idx
 }
 
+/// The octree's child slot on the `push` lanes (`Relative::child`):
+/// `parent + ofs` (through the far-pointer slot where the far bit is set)
+/// plus the non-leaf children before `c` (`cm & 0x7F`, counted by nibbles
+/// in a byte shuffle).
 #[inline(always)]
 unsafe fn child_relative(
     base: *const i32,
@@ -134,8 +139,11 @@ unsafe fn child_relative(
     _mm512_add_epi32(_mm512_add_epi32(s.parent, ofs), cnt)
 }
 
+/// One loop iteration of every live lane of `g` (PUSH, ADVANCE, POP as
+/// masked moves), then the answers of the lanes whose ray ended and their
+/// refill.
 #[inline(always)]
-#[allow(clippy::needless_range_loop)]
+#[allow(clippy::needless_range_loop)] // per-axis loops over lane vectors, as the scalar cast
 unsafe fn step<A: Addressing>(g: &mut Group<Avx512>, k: &Consts<Avx512>, out: &mut [CastHit<f32>]) {
     let base = k.nodes.as_ptr() as *const i32;
     let zf = _mm512_setzero_ps();

@@ -24,7 +24,7 @@ pub(super) const W_MAX: usize = 16;
 pub(super) const SD: usize = S_MAX as usize + 1;
 
 /// The stack entry after every lane's: the target of the lanes that do
-/// not write at a PUSH (the sets' `push_stack`); never read.
+/// not write at a PUSH ([`write_stack`]); never read.
 pub(super) const SPARE: usize = W_MAX * SD;
 
 /// Entries of a group's stack: lane `l`'s entry for scale `s` at
@@ -54,7 +54,8 @@ pub(super) trait Isa: Sized {
     unsafe fn none() -> Self::M;
     /// The mask as bits, lane `l` at bit `l`.
     unsafe fn bits(m: Self::M) -> u32;
-    /// Sets or clears lane `l` of `m`.
+    /// Sets or clears lane `l` of `m` (plain stores or bit operations: safe
+    /// anywhere).
     fn set(m: &mut Self::M, l: usize, on: bool);
     /// The lanes of `v`.
     fn f_lanes(v: &mut Self::F) -> &mut [f32];
@@ -246,7 +247,7 @@ pub(super) fn prefetch<V: Isa>(base: *const i32, mut slot: V::I) {
 /// 2-core Zen 4, docs/PERF.md ninth session): coherent 1.07-1.30x,
 /// incoherent 0.90-1.16x, 0 differing rays; AVX-512's masked scatter in
 /// its place was 1.00-1.03x of these stores on the octree and 0.86-0.94x
-/// on the DAG.
+/// on the DAG (both measured with eight lanes, not re-taken with sixteen).
 #[inline(always)]
 pub(super) fn write_stack<V: Isa>(
     mut at: V::I,
