@@ -4,7 +4,7 @@
 use std::arch::x86_64::*;
 
 use super::stream::{
-    answer, prefetch, stream, write_stack, Consts, Ended, Group, Isa, State, SD, SPARE,
+    answer, prefetch, stream, write_stack, Consts, Ended, Group, Isa, State, SPARE,
 };
 use crate::voxels::cast::{Addressing, CastHit, CastParams, S_MAX};
 
@@ -42,14 +42,6 @@ impl Isa for Avx2 {
     #[inline(always)]
     unsafe fn splat_i(x: i32) -> __m256i {
         _mm256_set1_epi32(x)
-    }
-
-    #[inline(always)]
-    unsafe fn lane_base() -> __m256i {
-        _mm256_mullo_epi32(
-            _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7),
-            _mm256_set1_epi32(SD as i32),
-        )
     }
 
     #[inline(always)]

@@ -7,7 +7,7 @@
 use std::arch::x86_64::*;
 
 use super::stream::{
-    answer, prefetch, stream, write_stack, Consts, Ended, Group, Isa, State, SD, SPARE,
+    answer, prefetch, stream, write_stack, Consts, Ended, Group, Isa, State, SPARE,
 };
 use crate::voxels::cast::{Addressing, CastHit, CastParams, S_MAX};
 
@@ -46,14 +46,6 @@ impl Isa for Avx512 {
     #[inline(always)]
     unsafe fn splat_i(x: i32) -> __m512i {
         _mm512_set1_epi32(x)
-    }
-
-    #[inline(always)]
-    unsafe fn lane_base() -> __m512i {
-        _mm512_mullo_epi32(
-            _mm512_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15),
-            _mm512_set1_epi32(SD as i32),
-        )
     }
 
     #[inline(always)]

@@ -48,8 +48,6 @@ pub(super) trait Isa: Sized {
     unsafe fn splat_f(x: f32) -> Self::F;
     /// Every lane `x`.
     unsafe fn splat_i(x: i32) -> Self::I;
-    /// Lane `l` holds `l * SD`.
-    unsafe fn lane_base() -> Self::I;
     /// No lane.
     unsafe fn none() -> Self::M;
     /// The mask as bits, lane `l` at bit `l`.
@@ -160,9 +158,9 @@ fn bits(mut m: u32) -> impl Iterator<Item = usize> {
 }
 
 /// The rays waiting for a lane, and which ray each lane holds.
-pub(super) struct Queue<'r> {
-    pub o: &'r [[f32; 3]],
-    pub d: &'r [[f32; 3]],
+struct Queue<'r> {
+    o: &'r [[f32; 3]],
+    d: &'r [[f32; 3]],
     near: Option<&'r [f64]>,
     next: usize,
     end: usize,
@@ -209,10 +207,11 @@ impl Queue<'_> {
 /// Loop constants of a stream.
 pub(super) struct Consts<'n, V: Isa> {
     pub nodes: &'n [u32],
-    pub depth: u32,
-    pub p: &'n CastParams,
+    depth: u32,
+    p: &'n CastParams,
     pub lod: Option<(V::F, V::F)>,
     pub max_iter: V::I,
+    /// Lane `l` holds `l * SD`, its first stack entry.
     pub lane_base: V::I,
 }
 
@@ -221,7 +220,7 @@ pub(super) struct Group<'r, V: Isa> {
     pub s: State<V>,
     pub stack_node: [i32; STACK],
     pub stack_tmax: [f32; STACK],
-    pub q: Queue<'r>,
+    q: Queue<'r>,
 }
 
 /// Starts the load of each lane's descriptor `nodes[2 * slot]` (PUSH's
@@ -339,7 +338,14 @@ pub(super) unsafe fn stream<V: Isa, A: Addressing>(
             )
         }),
         max_iter: V::splat_i(p.max_iter.min(i32::MAX as u32) as i32),
-        lane_base: V::lane_base(),
+        lane_base: {
+            // Lane `l`'s first stack entry, `l * SD`.
+            let mut b = V::splat_i(0);
+            for (l, x) in V::i_lanes(&mut b).iter_mut().enumerate() {
+                *x = (l * SD) as i32;
+            }
+            b
+        },
     };
     let n = o.len();
     let mut g: [Group<V>; G] = std::array::from_fn(|j| Group {
