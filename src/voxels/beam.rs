@@ -7,7 +7,7 @@
 //! distance from the origin to a non-empty node box that meets the cone
 //! ([`start_distance`]). A tile whose cone meets no non-empty box is
 //! answered as misses without a cast; every other ray's cast starts at the
-//! tile's distance ([`ray_near`]) instead of at `near`, in the lane cast
+//! tile's distance ([`tile_near`]) instead of at `near`, in the lane cast
 //! (f32) or the per-ray loop ([`cast_all_beam`]).
 //!
 //! Why the start never passes a hit: a ray's hit point lies in a solid
@@ -49,7 +49,7 @@ pub const MAX_HALF_ANGLE: f64 = 0.5;
 /// A cone from `o` about the unit `axis` with half-angle `half`; boxes are
 /// grown by `slack` (world units) when tested against it. `time_error`
 /// bounds the cast's plane-time rounding ([`plane_time_error`]) on every
-/// ray it was built from.
+/// ray it was built from, and `len_max` their largest `|d|`.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Cone {
     pub o: [f64; 3],
@@ -57,7 +57,8 @@ pub struct Cone {
     pub half: f64,
     pub slack: f64,
     pub time_error: f64,
-    cos_half: f64,
+    pub len_max: f64,
+    cos2_half: f64,
     sin_half: f64,
     tan_half: f64,
 }
@@ -69,6 +70,16 @@ fn dot(a: [f64; 3], b: [f64; 3]) -> f64 {
 fn unit(v: [f64; 3]) -> Option<[f64; 3]> {
     let l = dot(v, v).sqrt();
     (l > 0.0 && l.is_finite()).then(|| v.map(|x| x / l))
+}
+
+/// `a` where it is less than `b`, else `b`.
+#[inline(always)]
+fn less(a: f64, b: f64) -> f64 {
+    if a < b {
+        a
+    } else {
+        b
+    }
 }
 
 /// A [`Cone`] being built from rays one at a time about a given axis.
@@ -104,10 +115,12 @@ impl<F: CastReal> ConeAcc<F> {
     pub fn add(&mut self, o: [F; 3], d: [F; 3]) {
         let d = d.map(|x| x.f64());
         let (c, l2) = (dot(d, self.axis), dot(d, d));
-        self.ok &= o == self.o && c > 0.0 && l2 > 0.0;
-        self.cos2_min = self.cos2_min.min(c * c / l2);
-        self.dmin = [0, 1, 2].map(|a| self.dmin[a].min(d[a].abs()));
-        self.len2_max = self.len2_max.max(l2);
+        // Without short circuits or NaN-aware min and max (a NaN spoils
+        // `ok`): selects the compiler keeps branch-free.
+        self.ok &= (o == self.o) & (c > 0.0) & (l2 > 0.0);
+        self.cos2_min = less(c * c / l2, self.cos2_min);
+        self.dmin = [0, 1, 2].map(|a| less(d[a].abs(), self.dmin[a]));
+        self.len2_max = -less(-l2, -self.len2_max);
     }
 
     /// The cone holding every ray taken in, its `slack` twice the largest
@@ -120,13 +133,15 @@ impl<F: CastReal> ConeAcc<F> {
         }
         let half = self.cos2_min.clamp(0.0, 1.0).sqrt().acos() + 1e-9;
         let time_error = plane_time_error(self.o, self.dmin.map(F::of));
+        let len_max = self.len2_max.sqrt();
         (half <= MAX_HALF_ANGLE).then(|| Cone {
             o: self.o.map(|x| x.f64()),
             axis: self.axis,
             half,
-            slack: 2.0 * time_error * self.len2_max.sqrt(),
+            slack: 2.0 * time_error * len_max,
             time_error,
-            cos_half: half.cos(),
+            len_max,
+            cos2_half: half.cos() * half.cos(),
             sin_half: half.sin(),
             tan_half: half.tan(),
         })
@@ -138,8 +153,9 @@ impl Cone {
     /// cone. Seen from `o` (at distance `l`) the ball covers the
     /// directions within `asin(r / l)` of `v`, and two such caps meet when
     /// the angle between their centres is at most the sum of their
-    /// half-angles; as cosines, times `l`: `v . axis >= cos(half) sqrt(l^2 -
-    /// r^2) - sin(half) r`, one square root and no division (the `1e-9 (1 +
+    /// half-angles; as cosines, times `l`: `v . axis + sin(half) r >=
+    /// cos(half) sqrt(l^2 - r^2)`, squared (the right side is not negative)
+    /// so that neither a square root nor a division is taken (the `1e-9 (1 +
     /// l^2)` term stands for a rounding slack of `1e-9 l`).
     #[inline]
     pub fn meets_sphere(&self, v: [f64; 3], r: f64) -> bool {
@@ -149,7 +165,7 @@ impl Cone {
             return true;
         }
         let lhs = dot(v, self.axis) + self.sin_half * r + 1e-9 * (1.0 + l2);
-        lhs >= self.cos_half * (l2 - r * r).sqrt()
+        lhs >= 0.0 && lhs * lhs >= self.cos2_half * (l2 - r * r)
     }
 }
 
@@ -167,69 +183,67 @@ fn box_distance2(o: [f64; 3], lo: [f64; 3], hi: [f64; 3]) -> f64 {
 /// when no non-empty box meets the cone. Distances are compared squared;
 /// box corners are exact (dyadic) in f64.
 pub fn start_distance<A: Addressing>(nodes: &[u32], depth: u32, cone: &Cone) -> f64 {
-    let voxel = 2.0 / (1u64 << depth) as f64;
     let tan2 = cone.tan_half * cone.tan_half;
     let mut best = f64::INFINITY;
-    // (squared distance, slot, level, low corner in finest voxels)
+    // (squared distance, slot, level, world low corner)
     let mut stack = Vec::with_capacity(8 * depth as usize + 1);
-    stack.push((0.0, 0usize, 0u32, [0u64; 3]));
-    let mut kids = [(0.0, 0usize, 0u32, [0u64; 3]); 8];
+    stack.push((0.0, 0usize, 0u32, [-1.0f64; 3]));
     while let Some((dist2, slot, level, lo)) = stack.pop() {
         if dist2 >= best {
             continue;
         }
         let desc = nodes[2 * slot];
         let (nonleaf, valid) = (desc & 0xFF, desc >> 8 & 0xFF);
-        let h = 1u64 << (depth - level - 1);
-        let size = h as f64 * voxel;
+        let size = 2.0 / (1u64 << (level + 1)) as f64;
         let radius = 0.5 * 3f64.sqrt() * size;
         let last = nonleaf == 0 || level + 1 >= depth;
-        let mut k = 0;
-        for c in 0..8u32 {
-            if valid >> c & 1 == 0 {
-                continue;
-            }
-            let clo = [0, 1, 2].map(|a| lo[a] + (c as u64 >> a & 1) * h);
-            let wlo = clo.map(|x| -1.0 + x as f64 * voxel);
+        let base = stack.len();
+        let mut todo = valid;
+        while todo != 0 {
+            let c = todo.trailing_zeros();
+            todo &= todo - 1;
+            let wlo = [0, 1, 2].map(|a| lo[a] + (c >> a & 1) as f64 * size);
             let whi = wlo.map(|x| x + size);
-            let v = [0, 1, 2].map(|a| wlo[a] + 0.5 * size - cone.o[a]);
-            if !cone.meets_sphere(v, radius) {
-                continue;
-            }
             let d2 = box_distance2(cone.o, wlo, whi);
             if d2 >= best {
+                continue;
+            }
+            let v = [0, 1, 2].map(|a| wlo[a] + 0.5 * size - cone.o[a]);
+            if !cone.meets_sphere(v, radius) {
                 continue;
             }
             let fine = size * size <= 4.0 * d2 * tan2;
             if last || nonleaf >> c & 1 == 0 || fine {
                 best = d2;
             } else {
+                // Into this node's children on the stack, nearest on top.
                 let child = A::child(nodes, slot, desc, desc << (7 - c), c);
-                kids[k] = (d2, child, level + 1, clo);
-                k += 1;
+                stack.push((d2, child, level + 1, wlo));
+                let mut i = stack.len() - 1;
+                while i > base && stack[i - 1].0 < d2 {
+                    stack.swap(i - 1, i);
+                    i -= 1;
+                }
             }
         }
-        // Nearest child on top of the stack.
-        let kids = &mut kids[..k];
-        kids.sort_unstable_by(|a, b| b.0.total_cmp(&a.0));
-        stack.extend_from_slice(kids);
     }
     best.sqrt()
 }
 
-/// The `near` of a ray with direction `d` in a tile whose start distance
-/// is `dist`: infinite (a miss, answered without a cast) when the tile's
-/// cone met no non-empty box; else the distance over `|d|`, pulled back by
-/// [`MARGIN`] and by `time_error` (the tile's bound on the cast's
-/// plane-time rounding, [`Cone::time_error`], so the cast's own rounded
-/// plane times cannot put the start past the hit voxel's entry), and never
-/// below `p.near`.
-pub fn ray_near<F: CastReal>(p: &CastParams, d: [F; 3], dist: f64, time_error: f64) -> f64 {
+/// The `near` of every ray of a tile whose cone is `cone` and whose start
+/// distance is `dist`: infinite (misses, answered without a cast) when the
+/// cone met no non-empty box; else the distance over the tile's largest
+/// `|d|` ([`Cone::len_max`], so no ray of the tile starts past `dist` from
+/// the origin), pulled back by [`MARGIN`] and by [`Cone::time_error`] (the
+/// tile's bound on the cast's plane-time rounding, so the cast's own
+/// rounded plane times cannot put the start past the hit voxel's entry),
+/// and never below `p.near`. One value per tile: no square root or
+/// division per ray.
+pub fn tile_near(p: &CastParams, cone: &Cone, dist: f64) -> f64 {
     if dist == f64::INFINITY {
         return f64::INFINITY;
     }
-    let len = dot(d.map(|x| x.f64()), d.map(|x| x.f64())).sqrt();
-    let s = dist / len * (1.0 - MARGIN) - time_error;
+    let s = dist / cone.len_max * (1.0 - MARGIN) - cone.time_error;
     if s.is_finite() && s > p.near {
         s
     } else {
@@ -289,7 +303,7 @@ fn band_cones<F: CastReal>(
     acc.iter().map(|c| c.as_ref()?.finish()).collect()
 }
 
-/// Every ray's `near` from its tile's beam ([`ray_near`]; `p.near` where
+/// Every ray's `near` from its tile's beam ([`tile_near`]; `p.near` where
 /// the tile has no cone), a band of tiles per task; `None` when no tile
 /// has one (rays without a shared origin, or an LOD cut).
 pub fn beam_nears<F: CastReal, A: Addressing>(
@@ -304,17 +318,16 @@ pub fn beam_nears<F: CastReal, A: Addressing>(
         return None;
     }
     let bands = par_collect("voxels.beam_starts", tiles.bands(), |b| {
-        let starts: Vec<Option<(f64, f64)>> = band_cones(tiles, b, o, d)
+        let starts: Vec<Option<f64>> = band_cones(tiles, b, o, d)
             .iter()
-            .map(|c| c.map(|c| (start_distance::<A>(nodes, depth, &c), c.time_error)))
+            .map(|c| c.map(|c| tile_near(p, &c, start_distance::<A>(nodes, depth, &c))))
             .collect();
         if starts.iter().all(Option::is_none) {
             return None;
         }
         let mut near = Vec::with_capacity(tiles.band(b).len());
-        tiles.each_part(b, |j, part| match starts[j] {
-            Some((dist, err)) => near.extend(part.map(|i| ray_near(p, d[i], dist, err))),
-            None => near.extend(part.map(|_| p.near)),
+        tiles.each_part(b, |j, part| {
+            near.resize(near.len() + part.len(), starts[j].unwrap_or(p.near))
         });
         Some(near)
     });
@@ -407,9 +420,18 @@ mod tests {
         }
     }
 
-    fn bound_holds<F: CastReal>(s: &Shape, depth: u32) {
+    /// `b`'s directions lengthened by 1, 1.5, .., 3 in turn, so a tile's
+    /// rays have differing `|d|`.
+    fn unnormalised<F: CastReal>(mut b: Batch<F>) -> Batch<F> {
+        for (i, d) in b.d.iter_mut().enumerate() {
+            let k = 1.0 + 0.5 * (i % 5) as f64;
+            *d = d.map(|x| F::of(x.f64() * k));
+        }
+        b
+    }
+
+    fn bound_holds<F: CastReal>(s: &Shape, depth: u32, b: &Batch<F>) {
         let t = build(s, depth, &MemBudget::fixed(1 << 30)).unwrap();
-        let b = camera_rays::<F>(96);
         let p = b.params(None, 1 << 16);
         let exact = cast_all::<F>(&t, &b.o, &b.d, &p);
         for tile in [2, TILE] {
@@ -440,8 +462,9 @@ mod tests {
             (Shape::Sphere { radius: 0.8 }, 8),
             (Shape::Menger { level: 4 }, 8),
         ] {
-            bound_holds::<f64>(&s, depth);
-            bound_holds::<f32>(&s, depth);
+            bound_holds::<f64>(&s, depth, &camera_rays(96));
+            bound_holds::<f32>(&s, depth, &camera_rays(96));
+            bound_holds::<f32>(&s, depth, &unnormalised(camera_rays(96)));
         }
     }
 
@@ -468,6 +491,11 @@ mod tests {
             let per_ray = cast_all::<f32>(&t, &b.o, &b.d, &p);
             let beam = cast_all_beam::<f32, Relative>(&t.nodes, depth, &b.shape, &b.o, &b.d, &p);
             same_but_iters(&beam, &per_ray);
+            let u = unnormalised(camera_rays::<f32>(128));
+            same_but_iters(
+                &cast_all_beam::<f32, Relative>(&t.nodes, depth, &u.shape, &u.o, &u.d, &p),
+                &cast_all::<f32>(&t, &u.o, &u.d, &p),
+            );
             let it = |h: &VoxelHits<f32>| h.iters.iter().map(|&x| x as i64).sum::<i64>();
             assert!(it(&beam) < it(&per_ray), "{} {}", it(&beam), it(&per_ray));
             let dag = cast_all_beam::<f32, Absolute>(&g.nodes, depth, &b.shape, &b.o, &b.d, &p);
