@@ -30,7 +30,7 @@
 //! at the ray) are cast from `near` unchanged.
 //! Referee: the per-ray cast (`voxel_beam_*` cases, unit tests below).
 
-use crate::parallel::par_collect;
+use std::ops::Range;
 
 use super::cast::{cast_with, Addressing, CastParams, CastReal};
 use super::hits::{cast_chunks, GRAIN};
@@ -303,13 +303,15 @@ fn band_cones<F: CastReal>(
     acc.iter().map(|c| c.as_ref()?.finish()).collect()
 }
 
-/// Every ray's `near` from its tile's beam ([`tile_near`]; `p.near` where
-/// the tile has no cone), a band of tiles per task; `None` when no tile
-/// has one (rays without a shared origin, or an LOD cut).
+/// The `near` of every ray of bands `bands` (ranges of [`Tiling::band`],
+/// in order) from its tile's beam ([`tile_near`]; `p.near` where the tile
+/// has no cone); `None` when no tile has one (rays without a shared origin,
+/// or an LOD cut). Sequential: the caller fans bands out.
 pub fn beam_nears<F: CastReal, A: Addressing>(
     nodes: &[u32],
     depth: u32,
     tiles: &Tiling,
+    bands: Range<usize>,
     o: &[[F; 3]],
     d: &[[F; 3]],
     p: &CastParams,
@@ -317,36 +319,34 @@ pub fn beam_nears<F: CastReal, A: Addressing>(
     if p.lod.is_some() {
         return None;
     }
-    let bands = par_collect("voxels.beam_starts", tiles.bands(), |b| {
+    let (first, mut near, mut any) = (tiles.band(bands.start).start, Vec::new(), false);
+    for b in bands {
         let starts: Vec<Option<f64>> = band_cones(tiles, b, o, d)
             .iter()
             .map(|c| c.map(|c| tile_near(p, &c, start_distance::<A>(nodes, depth, &c))))
             .collect();
         if starts.iter().all(Option::is_none) {
-            return None;
+            if any {
+                near.resize(near.len() + tiles.band(b).len(), p.near);
+            }
+            continue;
         }
-        let mut near = Vec::with_capacity(tiles.band(b).len());
+        if !any {
+            near.resize(tiles.band(b).start - first, p.near);
+            any = true;
+        }
         tiles.each_part(b, |j, part| {
             near.resize(near.len() + part.len(), starts[j].unwrap_or(p.near))
         });
-        Some(near)
-    });
-    if bands.iter().all(Option::is_none) {
-        return None;
     }
-    let mut near = Vec::with_capacity(o.len());
-    for (b, part) in bands.into_iter().enumerate() {
-        match part {
-            Some(v) => near.extend(v),
-            None => near.extend(tiles.band(b).map(|_| p.near)),
-        }
-    }
-    Some(near)
+    any.then_some(near)
 }
 
 /// Every ray cast from its tile's beam start ([`beam_nears`]) by the lane
 /// cast (f32) or the per-ray loop (other precisions): `hit`, `t`, `leaf`,
-/// `normal` identical to the per-ray cast from `near`, fewer `iters`.
+/// `normal` identical to the per-ray cast from `near`, fewer `iters`. One
+/// task per run of whole bands (at least [`GRAIN`] rays) finds its rays'
+/// starts and casts them while they are in cache.
 pub fn cast_all_beam<F: CastReal, A: Addressing>(
     nodes: &[u32],
     depth: u32,
@@ -356,9 +356,12 @@ pub fn cast_all_beam<F: CastReal, A: Addressing>(
     p: &CastParams,
 ) -> VoxelHits<F> {
     let tiles = Tiling::new(shape, o.len(), TILE);
-    let near = beam_nears::<F, A>(nodes, depth, &tiles, o, d, p);
-    cast_chunks("voxels.cast_beam", o.len(), GRAIN, |r, out| {
-        let part = near.as_deref().map(|n| &n[r.clone()]);
+    let band = tiles.band(0).len().max(1);
+    let grain = band * GRAIN.div_ceil(band);
+    cast_chunks("voxels.cast_beam", o.len(), grain, |r, out| {
+        let bands = r.start / band..r.end.div_ceil(band);
+        let near = beam_nears::<F, A>(nodes, depth, &tiles, bands, o, d, p);
+        let part = near.as_deref();
         if F::SIMD {
             F::cast_lanes::<A>(nodes, depth, &o[r.clone()], &d[r], p, part, out);
         } else {
@@ -436,8 +439,16 @@ mod tests {
         let exact = cast_all::<F>(&t, &b.o, &b.d, &p);
         for tile in [2, TILE] {
             let tiles = Tiling::new(&b.shape, b.o.len(), tile);
-            let near = beam_nears::<F, Relative>(&t.nodes, depth, &tiles, &b.o, &b.d, &p)
-                .expect("camera tiles share an origin");
+            let near = beam_nears::<F, Relative>(
+                &t.nodes,
+                depth,
+                &tiles,
+                0..tiles.bands(),
+                &b.o,
+                &b.d,
+                &p,
+            )
+            .expect("camera tiles share an origin");
             let (mut raised, mut hits, mut answered) = (0, 0, 0);
             for (i, &ni) in near.iter().enumerate() {
                 raised += (ni > p.near) as u32;
@@ -522,9 +533,47 @@ mod tests {
         let p = CastParams::default();
         let shape = [o.len()];
         let tiles = Tiling::new(&shape, o.len(), TILE);
-        assert!(beam_nears::<f32, Relative>(&t.nodes, 7, &tiles, &o, &d, &p).is_none());
+        assert!(
+            beam_nears::<f32, Relative>(&t.nodes, 7, &tiles, 0..tiles.bands(), &o, &d, &p)
+                .is_none()
+        );
         let beam = cast_all_beam::<f32, Relative>(&t.nodes, 7, &shape, &o, &d, &p);
         assert_eq!(beam, cast_all::<f32>(&t, &o, &d, &p));
+    }
+
+    #[test]
+    fn bands_without_a_cone_beside_one_with_a_cone_are_cast_from_near() {
+        // Runs of 64 rays: incoherent, 64 camera rays across the sphere
+        // (one origin), incoherent; one cast task holds all three bands.
+        let t = build(
+            &Shape::Sphere { radius: 0.8 },
+            7,
+            &MemBudget::fixed(1 << 30),
+        )
+        .unwrap();
+        let cam = camera_rays::<f32>(96);
+        let p = cam.params(None, 1 << 16);
+        let inc: Vec<([f32; 3], [f32; 3])> = incoherent(128, 3)
+            .into_iter()
+            .map(|(o, d)| (o.map(|x| x as f32), d.map(|x| x as f32)))
+            .collect();
+        let mid = 48 * 96 + 16;
+        let rays: Vec<_> = inc[..64]
+            .iter()
+            .copied()
+            .chain((mid..mid + 64).map(|i| (cam.o[i], cam.d[i])))
+            .chain(inc[64..].iter().copied())
+            .collect();
+        let (o, d): (Vec<[f32; 3]>, Vec<[f32; 3]>) = rays.into_iter().unzip();
+        let shape = [o.len()];
+        let tiles = Tiling::new(&shape, o.len(), TILE);
+        let near = beam_nears::<f32, Relative>(&t.nodes, 7, &tiles, 0..tiles.bands(), &o, &d, &p)
+            .expect("the middle band has a cone");
+        assert_eq!(near.len(), o.len());
+        assert!(near[64..128].iter().all(|&x| x > p.near));
+        assert!(near[..64].iter().chain(&near[128..]).all(|&x| x == p.near));
+        let beam = cast_all_beam::<f32, Relative>(&t.nodes, 7, &shape, &o, &d, &p);
+        same_but_iters(&beam, &cast_all::<f32>(&t, &o, &d, &p));
     }
 
     #[test]
