@@ -382,10 +382,12 @@ mod tests {
     use crate::voxels::batch::Batch;
     use crate::voxels::cast::{Absolute, Relative};
     use crate::voxels::dag::build_dag;
+    use crate::voxels::fixtures::incoherent_in;
     use crate::voxels::octree::build;
-    use crate::voxels::raysets::incoherent;
     use crate::voxels::render::{cast_all, cast_all_dag};
     use crate::voxels::shape::Shape;
+
+    const SPHERE: Shape = Shape::Sphere { radius: 0.8 };
 
     /// The cone of `rays` about the sum of their first and last directions,
     /// as `band_cones` builds a tile's.
@@ -520,16 +522,8 @@ mod tests {
 
     #[test]
     fn runs_without_a_shared_origin_are_cast_from_near() {
-        let t = build(
-            &Shape::Sphere { radius: 0.8 },
-            7,
-            &MemBudget::fixed(1 << 30),
-        )
-        .unwrap();
-        let (o, d): (Vec<[f32; 3]>, Vec<[f32; 3]>) = incoherent(512, 3)
-            .into_iter()
-            .map(|(o, d)| (o.map(|x| x as f32), d.map(|x| x as f32)))
-            .unzip();
+        let t = build(&SPHERE, 7, &MemBudget::fixed(1 << 30)).unwrap();
+        let (o, d) = incoherent_in::<f32>(512, 3);
         let p = CastParams::default();
         let shape = [o.len()];
         let tiles = Tiling::new(&shape, o.len(), TILE);
@@ -545,26 +539,13 @@ mod tests {
     fn bands_without_a_cone_beside_one_with_a_cone_are_cast_from_near() {
         // Runs of 64 rays: incoherent, 64 camera rays across the sphere
         // (one origin), incoherent; one cast task holds all three bands.
-        let t = build(
-            &Shape::Sphere { radius: 0.8 },
-            7,
-            &MemBudget::fixed(1 << 30),
-        )
-        .unwrap();
+        let t = build(&SPHERE, 7, &MemBudget::fixed(1 << 30)).unwrap();
         let cam = camera_rays::<f32>(96);
         let p = cam.params(None, 1 << 16);
-        let inc: Vec<([f32; 3], [f32; 3])> = incoherent(128, 3)
-            .into_iter()
-            .map(|(o, d)| (o.map(|x| x as f32), d.map(|x| x as f32)))
-            .collect();
-        let mid = 48 * 96 + 16;
-        let rays: Vec<_> = inc[..64]
-            .iter()
-            .copied()
-            .chain((mid..mid + 64).map(|i| (cam.o[i], cam.d[i])))
-            .chain(inc[64..].iter().copied())
-            .collect();
-        let (o, d): (Vec<[f32; 3]>, Vec<[f32; 3]>) = rays.into_iter().unzip();
+        let (io, id) = incoherent_in::<f32>(128, 3);
+        let mid = 48 * 96 + 16..48 * 96 + 80;
+        let o = [&io[..64], &cam.o[mid.clone()], &io[64..]].concat();
+        let d = [&id[..64], &cam.d[mid], &id[64..]].concat();
         let shape = [o.len()];
         let tiles = Tiling::new(&shape, o.len(), TILE);
         let near = beam_nears::<f32, Relative>(&t.nodes, 7, &tiles, 0..tiles.bands(), &o, &d, &p)
