@@ -109,15 +109,16 @@ impl<F: CastReal> ConeAcc<F> {
         })
     }
 
-    /// Takes ray `(o, d)` in; a differing origin, a zero direction or one
-    /// 90 degrees or more off the axis spoils the cone.
+    /// Takes ray `(o, d)` in; a differing origin, a zero, NaN or infinite
+    /// direction, or one 90 degrees or more off the axis spoils the cone.
     #[inline]
     pub fn add(&mut self, o: [F; 3], d: [F; 3]) {
         let d = d.map(|x| x.f64());
         let (c, l2) = (dot(d, self.axis), dot(d, d));
-        // Without short circuits or NaN-aware min and max (a NaN spoils
-        // `ok`): selects the compiler keeps branch-free.
-        self.ok &= (o == self.o) & (c > 0.0) & (l2 > 0.0);
+        // Without short circuits or NaN-aware min and max (a NaN or
+        // infinite direction spoils `ok`): selects the compiler keeps
+        // branch-free.
+        self.ok &= (o == self.o) & (c > 0.0) & (l2 > 0.0) & (l2 < f64::INFINITY);
         self.cos2_min = less(c * c / l2, self.cos2_min);
         self.dmin = [0, 1, 2].map(|a| less(d[a].abs(), self.dmin[a]));
         self.len2_max = -less(-l2, -self.len2_max);
@@ -154,9 +155,14 @@ impl Cone {
     /// directions within `asin(r / l)` of `v`, and two such caps meet when
     /// the angle between their centres is at most the sum of their
     /// half-angles; as cosines, times `l`: `v . axis + sin(half) r >=
-    /// cos(half) sqrt(l^2 - r^2)`, squared (the right side is not negative)
-    /// so that neither a square root nor a division is taken (the `1e-9 (1 +
-    /// l^2)` term stands for a rounding slack of `1e-9 l`).
+    /// cos(half) sqrt(l^2 - r^2)`, squared so that neither a square root
+    /// nor a division is taken (the right side is positive past the early
+    /// return, so the left side must not be negative: the `lhs >= 0` guard
+    /// makes the squared form equivalent). The `1e-9 (1 + l^2)` term stands
+    /// for a rounding slack of `1e-9 l`, except where `l` is within a few
+    /// ulps of `r` (`l^2 - r^2` cancels): the origin on the ball's surface,
+    /// where the ball spans a half-space of directions and a ray through
+    /// the box passes far from the test's boundary.
     #[inline]
     pub fn meets_sphere(&self, v: [f64; 3], r: f64) -> bool {
         let r = r + self.slack;
@@ -303,10 +309,11 @@ fn band_cones<F: CastReal>(
     acc.iter().map(|c| c.as_ref()?.finish()).collect()
 }
 
-/// The `near` of every ray of bands `bands` (ranges of [`Tiling::band`],
-/// in order) from its tile's beam ([`tile_near`]; `p.near` where the tile
-/// has no cone); `None` when no tile has one (rays without a shared origin,
-/// or an LOD cut). Sequential: the caller fans bands out.
+/// The `near` of every ray of the bands numbered `bands` from its tile's
+/// beam ([`tile_near`]; `p.near` where the tile has no cone), element 0
+/// for ray `tiles.band(bands.start).start`; `None` when no tile of these
+/// bands has one (rays without a shared origin, or an LOD cut).
+/// Sequential: the caller fans bands out.
 pub fn beam_nears<F: CastReal, A: Addressing>(
     nodes: &[u32],
     depth: u32,
@@ -342,11 +349,26 @@ pub fn beam_nears<F: CastReal, A: Addressing>(
     any.then_some(near)
 }
 
+/// Rays per beam cast task: whole bands, at least [`GRAIN`] where there
+/// are that many.
+fn task_grain(tiles: &Tiling) -> usize {
+    let band = tiles.band(0).len().max(1);
+    band * GRAIN.div_ceil(band)
+}
+
+/// The numbers of the bands that hold rays `r`, a range that starts on a
+/// band's first ray (a task of [`task_grain`] rays).
+fn bands_of(tiles: &Tiling, r: &Range<usize>) -> Range<usize> {
+    let band = tiles.band(0).len().max(1);
+    r.start / band..r.end.div_ceil(band)
+}
+
 /// Every ray cast from its tile's beam start ([`beam_nears`]) by the lane
 /// cast (f32) or the per-ray loop (other precisions): `hit`, `t`, `leaf`,
-/// `normal` identical to the per-ray cast from `near`, fewer `iters`. One
-/// task per run of whole bands (at least [`GRAIN`] rays) finds its rays'
-/// starts and casts them while they are in cache.
+/// `normal` identical to the per-ray cast from `near`, fewer `iters`. Each
+/// task ([`task_grain`] rays, whole bands) finds its rays' starts and casts
+/// them, so they are read once more while still in cache (a band of a
+/// camera image is 8 rows: 98 KB of rays at 512 wide).
 pub fn cast_all_beam<F: CastReal, A: Addressing>(
     nodes: &[u32],
     depth: u32,
@@ -356,11 +378,9 @@ pub fn cast_all_beam<F: CastReal, A: Addressing>(
     p: &CastParams,
 ) -> VoxelHits<F> {
     let tiles = Tiling::new(shape, o.len(), TILE);
-    let band = tiles.band(0).len().max(1);
-    let grain = band * GRAIN.div_ceil(band);
-    cast_chunks("voxels.cast_beam", o.len(), grain, |r, out| {
-        let bands = r.start / band..r.end.div_ceil(band);
-        let near = beam_nears::<F, A>(nodes, depth, &tiles, bands, o, d, p);
+    cast_chunks("voxels.cast_beam", o.len(), task_grain(&tiles), |r, out| {
+        let near = beam_nears::<F, A>(nodes, depth, &tiles, bands_of(&tiles, &r), o, d, p);
+        debug_assert!(near.as_ref().is_none_or(|n| n.len() == r.len()));
         let part = near.as_deref();
         if F::SIMD {
             F::cast_lanes::<A>(nodes, depth, &o[r.clone()], &d[r], p, part, out);
@@ -409,10 +429,13 @@ mod tests {
     }
 
     fn camera_rays<F: Real>(size: u32) -> Batch<F> {
-        let cam =
-            Camera::pinhole_look_at([2.0, 1.5, 2.5], [0.0; 3], [0.0, 1.0, 0.0], 45.0, size, size)
-                .unwrap();
-        let gen = RayGen::new(size, size);
+        image_rays(size, size)
+    }
+
+    fn image_rays<F: Real>(w: u32, h: u32) -> Batch<F> {
+        let cam = Camera::pinhole_look_at([2.0, 1.5, 2.5], [0.0; 3], [0.0, 1.0, 0.0], 45.0, w, h)
+            .unwrap();
+        let gen = RayGen::new(w, h);
         Batch::camera(&cam, &gen, &MemBudget::fixed(1 << 30)).unwrap()
     }
 
@@ -521,6 +544,66 @@ mod tests {
     }
 
     #[test]
+    fn each_tasks_starts_are_its_slice_of_the_whole_sets() {
+        // Runs of 64 camera rays (one origin each) with one incoherent run
+        // first in the second task: every task's starts, found from its
+        // own bands, are the whole set's starts for its rays.
+        let t = build(&SPHERE, 8, &MemBudget::fixed(1 << 30)).unwrap();
+        let cam = camera_rays::<f32>(96);
+        let p = cam.params(None, 1 << 16);
+        let (mut o, mut d) = (cam.o.clone(), cam.d.clone());
+        let (io, id) = incoherent_in::<f32>(64, 5);
+        let grain = GRAIN;
+        o[grain..grain + 64].copy_from_slice(&io);
+        d[grain..grain + 64].copy_from_slice(&id);
+        let shape = [o.len()];
+        let tiles = Tiling::new(&shape, o.len(), TILE);
+        assert_eq!(task_grain(&tiles), grain);
+        let whole =
+            beam_nears::<f32, Relative>(&t.nodes, 8, &tiles, 0..tiles.bands(), &o, &d, &p).unwrap();
+        assert!(whole[grain..grain + 64].iter().all(|&x| x == p.near));
+        for start in (0..o.len()).step_by(grain) {
+            let r = start..(start + grain).min(o.len());
+            let bands = bands_of(&tiles, &r);
+            let part = beam_nears::<f32, Relative>(&t.nodes, 8, &tiles, bands, &o, &d, &p)
+                .unwrap_or_else(|| vec![p.near; r.len()]);
+            assert_eq!(part, whole[r.clone()], "task at {start}");
+        }
+        let beam = cast_all_beam::<f32, Relative>(&t.nodes, 8, &shape, &o, &d, &p);
+        same_but_iters(&beam, &cast_all::<f32>(&t, &o, &d, &p));
+    }
+
+    #[test]
+    fn images_of_partial_tiles_and_tasks_are_cast_as_by_the_per_ray_cast() {
+        // 61 x 203 pixels: partial tiles on the right and bottom, six
+        // tasks, the last short; and images smaller than one band.
+        let t = build(&SPHERE, 8, &MemBudget::fixed(1 << 30)).unwrap();
+        for (w, h) in [(61, 203), (5, 3), (1, 1)] {
+            let b = image_rays::<f32>(w, h);
+            let p = b.params(None, 1 << 16);
+            let beam = cast_all_beam::<f32, Relative>(&t.nodes, 8, &b.shape, &b.o, &b.d, &p);
+            same_but_iters(&beam, &cast_all::<f32>(&t, &b.o, &b.d, &p));
+        }
+        let none =
+            cast_all_beam::<f32, Relative>(&t.nodes, 8, &[0], &[], &[], &CastParams::default());
+        assert!(none.hit.is_empty());
+    }
+
+    #[test]
+    fn an_infinite_direction_spoils_the_cone() {
+        let d = [
+            [0.1f32, 0.0, 1.0],
+            [f32::INFINITY, 0.0, 1.0],
+            [0.0, 0.1, 1.0],
+        ];
+        assert!(cone_around(d.iter().map(|&d| ([0.0f32; 3], d))).is_none());
+        let d = d.map(|d| d.map(|x| x as f64));
+        assert!(cone_around(d.iter().map(|&d| ([0.0f64; 3], d))).is_none());
+        let finite = [[0.1f64, 0.0, 1.0], [0.0, 0.1, 1.0]];
+        assert!(cone_around(finite.iter().map(|&d| ([0.0f64; 3], d))).is_some());
+    }
+
+    #[test]
     fn runs_without_a_shared_origin_are_cast_from_near() {
         let t = build(&SPHERE, 7, &MemBudget::fixed(1 << 30)).unwrap();
         let (o, d) = incoherent_in::<f32>(512, 3);
@@ -580,7 +663,7 @@ mod tests {
 
     #[test]
     fn the_cosine_cone_test_agrees_with_the_angle_test() {
-        // The trigonometric form of [`Cone::meets`] (without slack) on boxes
+        // The trigonometric form of [`Cone::meets_sphere`] (without slack) on boxes
         // scattered about a cone: never a false `false`, and the two agree
         // away from the boundary.
         let d = [[1.0f64, 0.2, -0.1], [1.0, 0.25, -0.05], [1.0, 0.18, -0.02]];
