@@ -35,6 +35,7 @@ use std::ops::Range;
 use super::cast::{cast_with, Addressing, CastParams, CastReal};
 use super::hits::{cast_chunks, GRAIN};
 use super::render::VoxelHits;
+use super::set_bits::set_bits;
 use super::tiles::Tiling;
 
 /// Pixels per side of a beam tile.
@@ -204,10 +205,8 @@ pub fn start_distance<A: Addressing>(nodes: &[u32], depth: u32, cone: &Cone) -> 
         let radius = 0.5 * 3f64.sqrt() * size;
         let last = nonleaf == 0 || level + 1 >= depth;
         let base = stack.len();
-        let mut todo = valid;
-        while todo != 0 {
-            let c = todo.trailing_zeros();
-            todo &= todo - 1;
+        for c in set_bits(valid) {
+            let c = c as u32;
             let wlo = [0, 1, 2].map(|a| lo[a] + (c >> a & 1) as f64 * size);
             let whi = wlo.map(|x| x + size);
             let d2 = box_distance2(cone.o, wlo, whi);

@@ -32,6 +32,7 @@ pub mod referee_contour;
 pub mod referee_dag;
 pub mod referee_mesh;
 pub mod render;
+pub mod set_bits;
 pub mod shape;
 pub mod through;
 pub mod tiles;

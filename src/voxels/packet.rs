@@ -25,6 +25,7 @@ use super::dag::Dag;
 use super::hits::collect;
 use super::octree::Octree;
 use super::render::VoxelHits;
+use super::set_bits::set_bits;
 
 /// Lanes per packet.
 pub const W: usize = 8;
@@ -255,7 +256,7 @@ fn stream<F: CastReal, A: Addressing>(
             let w = nodes[2 * ln.parent[l] as usize];
             ln.desc[l] = sel(ln.desc[l] == 0, w, ln.desc[l]);
         }
-        for l in bits(capped) {
+        for l in set_bits(capped) {
             out[ln.ray[l]] = CastHit::miss(ln.iters[l] - 1, true);
             ln.ray[l] = IDLE;
         }
@@ -292,14 +293,14 @@ fn stream<F: CastReal, A: Addressing>(
         }
         stops &= active;
         // Stops: the hit, and the lane is free.
-        for l in bits(stops) {
+        for l in set_bits(stops) {
             let i = ln.ray[l];
             let stop = ln.stop(l, stop_leaf[l]);
             out[i] = finish::<F, A>(nodes, depth, o[i], d[i], p, &ln.st[l], &stop);
             ln.ray[l] = IDLE;
         }
         // PUSH: stack write and child address per lane, the rest blended.
-        for l in bits(pushes & active) {
+        for l in set_bits(pushes & active) {
             let s = ln.scale[l] as usize;
             let keep = tc_max[l] < ln.h[l];
             ln.stack_node[l][s] = sel(keep, ln.parent[l], ln.stack_node[l][s]);
@@ -347,7 +348,7 @@ fn stream<F: CastReal, A: Addressing>(
             pops |= (pop[l] as u32) << l;
         }
         // POP (per lane): the highest differing bit, the stack, rounding.
-        for l in bits(pops & active & !stops) {
+        for l in set_bits(pops & active & !stops) {
             let se = ln.scale_exp2[l];
             let mut diff = 0u64;
             for a in 0..3 {
@@ -377,18 +378,6 @@ fn stream<F: CastReal, A: Addressing>(
             ln.desc[l] = 0;
         }
     }
-}
-
-/// The indices of the set bits of `m`, lowest first.
-#[inline(always)]
-fn bits(mut m: u32) -> impl Iterator<Item = usize> {
-    std::iter::from_fn(move || {
-        (m != 0).then(|| {
-            let l = m.trailing_zeros() as usize;
-            m &= m - 1;
-            l
-        })
-    })
 }
 
 #[cfg(test)]

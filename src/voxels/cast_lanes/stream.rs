@@ -6,6 +6,7 @@
 //! ([`Isa::step`]).
 
 use crate::voxels::cast::{finish, start, Addressing, CastHit, CastParams, Start, Stop, S_MAX};
+use crate::voxels::set_bits::set_bits;
 
 /// Lane groups per stream. Measured in one run (shared machine, 30
 /// interleaved rounds, sphere d10 and Menger d10, octree and DAG, 2^18
@@ -145,18 +146,6 @@ impl<V: Isa> State<V> {
     }
 }
 
-/// Bits of a lane mask, lowest first.
-#[inline(always)]
-fn bits(mut m: u32) -> impl Iterator<Item = usize> {
-    std::iter::from_fn(move || {
-        (m != 0).then(|| {
-            let l = m.trailing_zeros() as usize;
-            m &= m - 1;
-            l
-        })
-    })
-}
-
 /// The rays waiting for a lane, and which ray each lane holds.
 struct Queue<'r> {
     o: &'r [[f32; 3]],
@@ -288,7 +277,7 @@ pub(super) fn answer<V: Isa, A: Addressing>(
 ) {
     let Group { s, q, .. } = g;
     let (o, d) = (q.o, q.d);
-    for l in bits(e.done) {
+    for l in set_bits(e.done) {
         let i = q.ray[l];
         let it = V::i_lanes(&mut s.iters)[l] as u32;
         out[i] = if e.capped >> l & 1 != 0 {
