@@ -72,8 +72,12 @@ impl Isa for Avx2 {
     }
 
     #[inline(always)]
-    unsafe fn step<A: Addressing>(g: &mut Group<Avx2>, k: &Consts<Avx2>, out: &mut [CastHit<f32>]) {
-        step::<A>(g, k, out)
+    unsafe fn step<A: Addressing, const N: usize>(
+        g: [&mut Group<Avx2>; N],
+        k: &Consts<Avx2>,
+        out: &mut [CastHit<f32>],
+    ) {
+        step::<A, N>(g, k, out)
     }
 }
 
@@ -133,149 +137,179 @@ unsafe fn child_relative(base: *const i32, s: &State<Avx2>, cm: __m256i, push: _
     _mm256_add_epi32(_mm256_add_epi32(s.parent, ofs), cnt)
 }
 
-/// One loop iteration of every live lane of `g` (PUSH, ADVANCE, POP by
-/// masks), then the answers of the lanes whose ray ended and their refill.
+/// One loop iteration of every live lane of the `N` groups `gs` (PUSH,
+/// ADVANCE, POP by masks), then the answers of the lanes whose ray ended
+/// and their refill; the groups interleaved phase by phase, as in
+/// `cast_lanes/avx512.rs`.
 #[inline(always)]
-#[allow(clippy::needless_range_loop)] // per-axis loops over lane vectors, as the scalar cast
-unsafe fn step<A: Addressing>(g: &mut Group<Avx2>, k: &Consts<Avx2>, out: &mut [CastHit<f32>]) {
+#[allow(clippy::needless_range_loop)] // per-axis and per-group loops over lane vectors
+unsafe fn step<A: Addressing, const N: usize>(
+    gs: [&mut Group<Avx2>; N],
+    k: &Consts<Avx2>,
+    out: &mut [CastHit<f32>],
+) {
     let base = k.nodes.as_ptr() as *const i32;
     let zf = _mm256_setzero_ps();
     let zi = _mm256_setzero_si256();
     let one = _mm256_set1_epi32(1);
     let half = _mm256_set1_ps(0.5);
     let (max_iter, lane_base) = (k.max_iter, k.lane_base);
-    let Group {
-        s,
-        stack_node,
-        stack_tmax,
-        ..
-    } = g;
-    let act = s.act;
-    s.iters = _mm256_add_epi32(s.iters, _mm256_and_si256(act, one));
-    let capped = _mm256_and_si256(act, _mm256_cmpgt_epi32(s.iters, max_iter));
-    let live = _mm256_andnot_si256(capped, act);
-    // Every live lane's descriptor in one gather.
-    let need = _mm256_and_si256(live, _mm256_cmpeq_epi32(s.desc, zi));
-    let slot = _mm256_slli_epi32::<1>(s.parent);
-    s.desc = _mm256_mask_i32gather_epi32::<4>(s.desc, base, slot, need);
-    let mut tc = [zf; 3];
-    for a in 0..3 {
-        tc[a] = _mm256_sub_ps(_mm256_mul_ps(s.pos[a], s.coef[a]), s.bias[a]);
+    let (mut capped, mut live, mut slot) = ([zi; N], [zi; N], [zi; N]);
+    for j in 0..N {
+        let s = &mut gs[j].s;
+        let act = s.act;
+        s.iters = _mm256_add_epi32(s.iters, _mm256_and_si256(act, one));
+        capped[j] = _mm256_and_si256(act, _mm256_cmpgt_epi32(s.iters, max_iter));
+        live[j] = _mm256_andnot_si256(capped[j], act);
+        // Every live lane's descriptor in one gather.
+        let need = _mm256_and_si256(live[j], _mm256_cmpeq_epi32(s.desc, zi));
+        slot[j] = _mm256_slli_epi32::<1>(s.parent);
+        s.desc = _mm256_mask_i32gather_epi32::<4>(s.desc, base, slot[j], need);
     }
-    let tc_max = _mm256_min_ps(_mm256_min_ps(tc[0], tc[1]), tc[2]);
-    let shift = _mm256_xor_si256(s.idx, s.octant);
-    let cm = _mm256_sllv_epi32(s.desc, shift);
-    let valid = _mm256_andnot_si256(clear(cm, 0x8000), le(s.t_min, s.t_max));
-    let lod_stop = if let Some((osz, dsz)) = k.lod {
-        let fp = _mm256_add_ps(_mm256_mul_ps(tc_max, dsz), osz);
-        let cut = _mm256_castps_si256(_mm256_cmp_ps::<_CMP_GE_OQ>(fp, s.se));
-        _mm256_and_si256(valid, cut)
-    } else {
-        zi
-    };
-    let tv_max = _mm256_min_ps(s.t_max, tc_max);
-    let inter = _mm256_andnot_si256(lod_stop, _mm256_and_si256(valid, le(s.t_min, tv_max)));
-    let leaf = clear(cm, 0x80);
-    let stop = _mm256_and_si256(
-        live,
-        _mm256_or_si256(lod_stop, _mm256_and_si256(inter, leaf)),
-    );
-    let push = _mm256_and_si256(live, _mm256_andnot_si256(leaf, inter));
-    let adv = _mm256_andnot_si256(_mm256_or_si256(stop, push), live);
-    let mut exit = zi;
-    if mask_i(push) != 0 {
-        // PUSH: the stack write where `tc_max < h`, per lane.
-        let keep = _mm256_castps_si256(_mm256_cmp_ps::<_CMP_LT_OQ>(tc_max, s.h));
-        let entry = _mm256_add_epi32(lane_base, s.scale);
-        let write = _mm256_and_si256(push, keep);
-        let at = _mm256_blendv_epi8(_mm256_set1_epi32(SPARE as i32), entry, write);
-        write_stack::<Avx2>(at, s.parent, s.t_max, stack_node, stack_tmax);
-        let child = if A::ABSOLUTE {
-            let hi_slot = _mm256_add_epi32(slot, one);
-            let hi = _mm256_mask_i32gather_epi32::<4>(zi, base, hi_slot, push);
-            _mm256_add_epi32(hi, _mm256_xor_si256(shift, _mm256_set1_epi32(7)))
+    let (mut tc, mut tc_max, mut tv_max) = ([[zf; 3]; N], [zf; N], [zf; N]);
+    let (mut shift, mut cm) = ([zi; N], [zi; N]);
+    let (mut leaf, mut stop, mut push, mut adv, mut exit) =
+        ([zi; N], [zi; N], [zi; N], [zi; N], [zi; N]);
+    for j in 0..N {
+        let s = &mut gs[j].s;
+        for a in 0..3 {
+            tc[j][a] = _mm256_sub_ps(_mm256_mul_ps(s.pos[a], s.coef[a]), s.bias[a]);
+        }
+        tc_max[j] = _mm256_min_ps(_mm256_min_ps(tc[j][0], tc[j][1]), tc[j][2]);
+        shift[j] = _mm256_xor_si256(s.idx, s.octant);
+        cm[j] = _mm256_sllv_epi32(s.desc, shift[j]);
+        let valid = _mm256_andnot_si256(clear(cm[j], 0x8000), le(s.t_min, s.t_max));
+        let lod_stop = if let Some((osz, dsz)) = k.lod {
+            let fp = _mm256_add_ps(_mm256_mul_ps(tc_max[j], dsz), osz);
+            let cut = _mm256_castps_si256(_mm256_cmp_ps::<_CMP_GE_OQ>(fp, s.se));
+            _mm256_and_si256(valid, cut)
         } else {
-            child_relative(base, s, cm, push)
+            zi
         };
-        prefetch::<Avx2>(base, _mm256_blendv_epi8(s.parent, child, push));
-        let halfs = _mm256_mul_ps(s.se, half);
-        let mut idx_push = zi;
-        let pf = _mm256_castsi256_ps(push);
-        for a in 0..3 {
-            let tcen = _mm256_add_ps(_mm256_mul_ps(halfs, s.coef[a]), tc[a]);
-            let up = _mm256_cmp_ps::<_CMP_GT_OQ>(tcen, s.t_min);
-            let b = _mm256_and_si256(_mm256_castps_si256(up), _mm256_set1_epi32(1 << a));
-            idx_push = _mm256_or_si256(idx_push, b);
-            let pushed = _mm256_add_ps(s.pos[a], _mm256_and_ps(up, halfs));
-            s.pos[a] = _mm256_blendv_ps(s.pos[a], pushed, pf);
-        }
-        s.idx = _mm256_blendv_epi8(s.idx, idx_push, push);
-        s.h = _mm256_blendv_ps(s.h, tc_max, pf);
-        s.scale = _mm256_add_epi32(s.scale, push);
-        s.se = _mm256_blendv_ps(s.se, halfs, pf);
-        s.t_max = _mm256_blendv_ps(s.t_max, tv_max, pf);
-        s.parent = _mm256_blendv_epi8(s.parent, child, push);
-        s.desc = _mm256_andnot_si256(push, s.desc);
+        tv_max[j] = _mm256_min_ps(s.t_max, tc_max[j]);
+        let inter = _mm256_andnot_si256(lod_stop, _mm256_and_si256(valid, le(s.t_min, tv_max[j])));
+        leaf[j] = clear(cm[j], 0x80);
+        stop[j] = _mm256_and_si256(
+            live[j],
+            _mm256_or_si256(lod_stop, _mm256_and_si256(inter, leaf[j])),
+        );
+        push[j] = _mm256_and_si256(live[j], _mm256_andnot_si256(leaf[j], inter));
+        adv[j] = _mm256_andnot_si256(_mm256_or_si256(stop[j], push[j]), live[j]);
     }
-    if mask_i(adv) != 0 {
-        // ADVANCE, and the bits that changed (for POP).
-        let af = _mm256_castsi256_ps(adv);
-        let mut step = zi;
-        let mut diff = zi;
-        for a in 0..3 {
-            let st = _mm256_cmp_ps::<_CMP_LE_OQ>(tc[a], tc_max);
-            let b = _mm256_and_si256(_mm256_castps_si256(st), _mm256_set1_epi32(1 << a));
-            step = _mm256_or_si256(step, b);
-            let moved = _mm256_sub_ps(s.pos[a], _mm256_and_ps(st, s.se));
-            s.pos[a] = _mm256_blendv_ps(s.pos[a], moved, af);
-            let back = _mm256_add_ps(s.pos[a], s.se);
-            let x = _mm256_xor_si256(_mm256_castps_si256(s.pos[a]), _mm256_castps_si256(back));
-            diff = _mm256_or_si256(diff, _mm256_and_si256(x, _mm256_castps_si256(st)));
-        }
-        s.t_min = _mm256_blendv_ps(s.t_min, tc_max, af);
-        let idx_adv = _mm256_xor_si256(s.idx, step);
-        s.idx = _mm256_blendv_epi8(s.idx, idx_adv, adv);
-        let pop = _mm256_andnot_si256(_mm256_cmpeq_epi32(_mm256_and_si256(idx_adv, step), zi), adv);
-        if mask_i(pop) != 0 {
-            // POP: the highest differing bit is the exponent of `diff`
-            // as a float (exact below 2^24; from there on the scale is
-            // past S_MAX either way).
-            let e = _mm256_castps_si256(_mm256_cvtepi32_ps(diff));
-            let scale = _mm256_sub_epi32(_mm256_srli_epi32::<23>(e), _mm256_set1_epi32(127));
-            exit = _mm256_and_si256(pop, _mm256_cmpgt_epi32(scale, _mm256_set1_epi32(S_MAX - 1)));
-            let ok = _mm256_andnot_si256(exit, pop);
-            let okf = _mm256_castsi256_ps(ok);
-            let sidx = _mm256_add_epi32(lane_base, scale);
-            s.parent = _mm256_mask_i32gather_epi32::<4>(s.parent, stack_node.as_ptr(), sidx, ok);
-            s.t_max = _mm256_mask_i32gather_ps::<4>(s.t_max, stack_tmax.as_ptr(), sidx, okf);
+    if push.iter().any(|&m| mask_i(m) != 0) {
+        for j in 0..N {
+            let g = &mut *gs[j];
+            let (s, push) = (&mut g.s, push[j]);
+            // PUSH: the stack write where `tc_max < h`, per lane.
+            let keep = _mm256_castps_si256(_mm256_cmp_ps::<_CMP_LT_OQ>(tc_max[j], s.h));
+            let entry = _mm256_add_epi32(lane_base, s.scale);
+            let write = _mm256_and_si256(push, keep);
+            let at = _mm256_blendv_epi8(_mm256_set1_epi32(SPARE as i32), entry, write);
+            write_stack::<Avx2>(at, s.parent, s.t_max, &mut g.stack_node, &mut g.stack_tmax);
+            let child = if A::ABSOLUTE {
+                let hi_slot = _mm256_add_epi32(slot[j], one);
+                let hi = _mm256_mask_i32gather_epi32::<4>(zi, base, hi_slot, push);
+                _mm256_add_epi32(hi, _mm256_xor_si256(shift[j], _mm256_set1_epi32(7)))
+            } else {
+                child_relative(base, s, cm[j], push)
+            };
+            prefetch::<Avx2>(base, _mm256_blendv_epi8(s.parent, child, push));
+            let halfs = _mm256_mul_ps(s.se, half);
+            let mut idx_push = zi;
+            let pf = _mm256_castsi256_ps(push);
             for a in 0..3 {
-                let sh = _mm256_srlv_epi32(_mm256_castps_si256(s.pos[a]), scale);
-                let rounded = _mm256_castsi256_ps(_mm256_sllv_epi32(sh, scale));
-                s.pos[a] = _mm256_blendv_ps(s.pos[a], rounded, okf);
+                let tcen = _mm256_add_ps(_mm256_mul_ps(halfs, s.coef[a]), tc[j][a]);
+                let up = _mm256_cmp_ps::<_CMP_GT_OQ>(tcen, s.t_min);
+                let b = _mm256_and_si256(_mm256_castps_si256(up), _mm256_set1_epi32(1 << a));
+                idx_push = _mm256_or_si256(idx_push, b);
+                let pushed = _mm256_add_ps(s.pos[a], _mm256_and_ps(up, halfs));
+                s.pos[a] = _mm256_blendv_ps(s.pos[a], pushed, pf);
             }
-            let se =
-                _mm256_slli_epi32::<23>(_mm256_add_epi32(scale, _mm256_set1_epi32(127 - S_MAX)));
-            s.scale = _mm256_blendv_epi8(s.scale, scale, ok);
-            s.se = _mm256_blendv_ps(s.se, _mm256_castsi256_ps(se), okf);
-            s.idx = _mm256_blendv_epi8(s.idx, pop_idx(&s.pos, scale), ok);
-            s.h = _mm256_andnot_ps(okf, s.h);
-            s.desc = _mm256_andnot_si256(ok, s.desc);
+            s.idx = _mm256_blendv_epi8(s.idx, idx_push, push);
+            s.h = _mm256_blendv_ps(s.h, tc_max[j], pf);
+            s.scale = _mm256_add_epi32(s.scale, push);
+            s.se = _mm256_blendv_ps(s.se, halfs, pf);
+            s.t_max = _mm256_blendv_ps(s.t_max, tv_max[j], pf);
+            s.parent = _mm256_blendv_epi8(s.parent, child, push);
+            s.desc = _mm256_andnot_si256(push, s.desc);
+        }
+    }
+    if adv.iter().any(|&m| mask_i(m) != 0) {
+        // ADVANCE, and the bits that changed (for POP).
+        let (mut pop, mut diff) = ([zi; N], [zi; N]);
+        for j in 0..N {
+            let (s, adv) = (&mut gs[j].s, adv[j]);
+            let af = _mm256_castsi256_ps(adv);
+            let mut step = zi;
+            for a in 0..3 {
+                let st = _mm256_cmp_ps::<_CMP_LE_OQ>(tc[j][a], tc_max[j]);
+                let b = _mm256_and_si256(_mm256_castps_si256(st), _mm256_set1_epi32(1 << a));
+                step = _mm256_or_si256(step, b);
+                let moved = _mm256_sub_ps(s.pos[a], _mm256_and_ps(st, s.se));
+                s.pos[a] = _mm256_blendv_ps(s.pos[a], moved, af);
+                let back = _mm256_add_ps(s.pos[a], s.se);
+                let x = _mm256_xor_si256(_mm256_castps_si256(s.pos[a]), _mm256_castps_si256(back));
+                diff[j] = _mm256_or_si256(diff[j], _mm256_and_si256(x, _mm256_castps_si256(st)));
+            }
+            s.t_min = _mm256_blendv_ps(s.t_min, tc_max[j], af);
+            let idx_adv = _mm256_xor_si256(s.idx, step);
+            s.idx = _mm256_blendv_epi8(s.idx, idx_adv, adv);
+            pop[j] =
+                _mm256_andnot_si256(_mm256_cmpeq_epi32(_mm256_and_si256(idx_adv, step), zi), adv);
+        }
+        if pop.iter().any(|&m| mask_i(m) != 0) {
+            for j in 0..N {
+                let g = &mut *gs[j];
+                let (s, pop) = (&mut g.s, pop[j]);
+                // POP: the highest differing bit is the exponent of `diff`
+                // as a float (exact below 2^24; from there on the scale is
+                // past S_MAX either way).
+                let e = _mm256_castps_si256(_mm256_cvtepi32_ps(diff[j]));
+                let scale = _mm256_sub_epi32(_mm256_srli_epi32::<23>(e), _mm256_set1_epi32(127));
+                exit[j] =
+                    _mm256_and_si256(pop, _mm256_cmpgt_epi32(scale, _mm256_set1_epi32(S_MAX - 1)));
+                let ok = _mm256_andnot_si256(exit[j], pop);
+                let okf = _mm256_castsi256_ps(ok);
+                let sidx = _mm256_add_epi32(lane_base, scale);
+                let (sn, st) = (g.stack_node.as_ptr(), g.stack_tmax.as_ptr());
+                s.parent = _mm256_mask_i32gather_epi32::<4>(s.parent, sn, sidx, ok);
+                s.t_max = _mm256_mask_i32gather_ps::<4>(s.t_max, st, sidx, okf);
+                for a in 0..3 {
+                    let sh = _mm256_srlv_epi32(_mm256_castps_si256(s.pos[a]), scale);
+                    let rounded = _mm256_castsi256_ps(_mm256_sllv_epi32(sh, scale));
+                    s.pos[a] = _mm256_blendv_ps(s.pos[a], rounded, okf);
+                }
+                let se = _mm256_slli_epi32::<23>(_mm256_add_epi32(
+                    scale,
+                    _mm256_set1_epi32(127 - S_MAX),
+                ));
+                s.scale = _mm256_blendv_epi8(s.scale, scale, ok);
+                s.se = _mm256_blendv_ps(s.se, _mm256_castsi256_ps(se), okf);
+                s.idx = _mm256_blendv_epi8(s.idx, pop_idx(&s.pos, scale), ok);
+                s.h = _mm256_andnot_ps(okf, s.h);
+                s.desc = _mm256_andnot_si256(ok, s.desc);
+            }
         }
     }
     // Lanes whose ray ended this iteration: the answer, then the next ray.
-    let done = mask_i(_mm256_or_si256(_mm256_or_si256(capped, stop), exit));
-    if done != 0 {
-        let (capped, stop, leaf) = (mask_i(capped), mask_i(stop), mask_i(leaf));
-        answer::<Avx2, A>(
-            g,
-            k,
-            Ended {
-                done,
-                capped,
-                stop,
-                leaf,
-            },
-            out,
-        );
+    for j in 0..N {
+        let done = mask_i(_mm256_or_si256(
+            _mm256_or_si256(capped[j], stop[j]),
+            exit[j],
+        ));
+        if done != 0 {
+            let (capped, stop, leaf) = (mask_i(capped[j]), mask_i(stop[j]), mask_i(leaf[j]));
+            answer::<Avx2, A>(
+                &mut *gs[j],
+                k,
+                Ended {
+                    done,
+                    capped,
+                    stop,
+                    leaf,
+                },
+                out,
+            );
+        }
     }
 }

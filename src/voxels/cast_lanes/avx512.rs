@@ -80,12 +80,12 @@ impl Isa for Avx512 {
     }
 
     #[inline(always)]
-    unsafe fn step<A: Addressing>(
-        g: &mut Group<Avx512>,
+    unsafe fn step<A: Addressing, const N: usize>(
+        g: [&mut Group<Avx512>; N],
         k: &Consts<Avx512>,
         out: &mut [CastHit<f32>],
     ) {
-        step::<A>(g, k, out)
+        step::<A, N>(g, k, out)
     }
 }
 
@@ -131,136 +131,162 @@ unsafe fn child_relative(
     _mm512_add_epi32(_mm512_add_epi32(s.parent, ofs), cnt)
 }
 
-/// One loop iteration of every live lane of `g` (PUSH, ADVANCE, POP as
-/// masked moves), then the answers of the lanes whose ray ended and their
-/// refill.
+/// One loop iteration of every live lane of the `N` groups `gs` (PUSH,
+/// ADVANCE, POP as masked moves), then the answers of the lanes whose ray
+/// ended and their refill. The groups' operations are interleaved phase by
+/// phase (each phase a loop over the groups), so one group's gathers and
+/// compares overlap the other's in the CPU's window.
 #[inline(always)]
-#[allow(clippy::needless_range_loop)] // per-axis loops over lane vectors, as the scalar cast
-unsafe fn step<A: Addressing>(g: &mut Group<Avx512>, k: &Consts<Avx512>, out: &mut [CastHit<f32>]) {
+#[allow(clippy::needless_range_loop)] // per-axis and per-group loops over lane vectors
+unsafe fn step<A: Addressing, const N: usize>(
+    gs: [&mut Group<Avx512>; N],
+    k: &Consts<Avx512>,
+    out: &mut [CastHit<f32>],
+) {
     let base = k.nodes.as_ptr() as *const i32;
     let zf = _mm512_setzero_ps();
     let zi = _mm512_setzero_si512();
     let one = _mm512_set1_epi32(1);
     let half = _mm512_set1_ps(0.5);
     let (max_iter, lane_base) = (k.max_iter, k.lane_base);
-    let Group {
-        s,
-        stack_node,
-        stack_tmax,
-        ..
-    } = g;
-    let act = s.act;
-    s.iters = _mm512_mask_add_epi32(s.iters, act, s.iters, one);
-    let capped = _mm512_mask_cmpgt_epi32_mask(act, s.iters, max_iter);
-    let live = act & !capped;
-    let need = _mm512_mask_cmpeq_epi32_mask(live, s.desc, zi);
-    let slot = _mm512_slli_epi32::<1>(s.parent);
-    s.desc = _mm512_mask_i32gather_epi32::<4>(s.desc, need, slot, base);
-    let mut tc = [zf; 3];
-    for a in 0..3 {
-        tc[a] = _mm512_sub_ps(_mm512_mul_ps(s.pos[a], s.coef[a]), s.bias[a]);
+    let m0: __mmask16 = 0;
+    let (mut capped, mut live, mut slot) = ([m0; N], [m0; N], [zi; N]);
+    for j in 0..N {
+        let s = &mut gs[j].s;
+        let act = s.act;
+        s.iters = _mm512_mask_add_epi32(s.iters, act, s.iters, one);
+        capped[j] = _mm512_mask_cmpgt_epi32_mask(act, s.iters, max_iter);
+        live[j] = act & !capped[j];
+        let need = _mm512_mask_cmpeq_epi32_mask(live[j], s.desc, zi);
+        slot[j] = _mm512_slli_epi32::<1>(s.parent);
+        s.desc = _mm512_mask_i32gather_epi32::<4>(s.desc, need, slot[j], base);
     }
-    let tc_max = _mm512_min_ps(_mm512_min_ps(tc[0], tc[1]), tc[2]);
-    let shift = _mm512_xor_si512(s.idx, s.octant);
-    let cm = _mm512_sllv_epi32(s.desc, shift);
-    let valid = _mm512_mask_cmp_ps_mask::<_CMP_LE_OQ>(
-        _mm512_test_epi32_mask(cm, _mm512_set1_epi32(0x8000)),
-        s.t_min,
-        s.t_max,
-    );
-    let lod_stop = if let Some((osz, dsz)) = k.lod {
-        let fp = _mm512_add_ps(_mm512_mul_ps(tc_max, dsz), osz);
-        _mm512_mask_cmp_ps_mask::<_CMP_GE_OQ>(valid, fp, s.se)
-    } else {
-        0
-    };
-    let tv_max = _mm512_min_ps(s.t_max, tc_max);
-    let inter = !lod_stop & _mm512_mask_cmp_ps_mask::<_CMP_LE_OQ>(valid, s.t_min, tv_max);
-    let leaf = _mm512_testn_epi32_mask(cm, _mm512_set1_epi32(0x80));
-    let stop = live & (lod_stop | (inter & leaf));
-    let push = live & inter & !leaf;
-    let adv = live & !(stop | push);
-    let mut exit: __mmask16 = 0;
-    if push != 0 {
-        let keep = _mm512_mask_cmp_ps_mask::<_CMP_LT_OQ>(push, tc_max, s.h);
-        let entry = _mm512_add_epi32(lane_base, s.scale);
-        let at = _mm512_mask_blend_epi32(keep, _mm512_set1_epi32(SPARE as i32), entry);
-        write_stack::<Avx512>(at, s.parent, s.t_max, stack_node, stack_tmax);
-        let child = if A::ABSOLUTE {
-            let hi_slot = _mm512_add_epi32(slot, one);
-            let hi = _mm512_mask_i32gather_epi32::<4>(zi, push, hi_slot, base);
-            _mm512_add_epi32(hi, _mm512_xor_si512(shift, _mm512_set1_epi32(7)))
+    let (mut tc, mut tc_max, mut tv_max) = ([[zf; 3]; N], [zf; N], [zf; N]);
+    let (mut shift, mut cm) = ([zi; N], [zi; N]);
+    let (mut leaf, mut stop, mut push, mut adv, mut exit) =
+        ([m0; N], [m0; N], [m0; N], [m0; N], [m0; N]);
+    for j in 0..N {
+        let s = &mut gs[j].s;
+        for a in 0..3 {
+            tc[j][a] = _mm512_sub_ps(_mm512_mul_ps(s.pos[a], s.coef[a]), s.bias[a]);
+        }
+        tc_max[j] = _mm512_min_ps(_mm512_min_ps(tc[j][0], tc[j][1]), tc[j][2]);
+        shift[j] = _mm512_xor_si512(s.idx, s.octant);
+        cm[j] = _mm512_sllv_epi32(s.desc, shift[j]);
+        let valid = _mm512_mask_cmp_ps_mask::<_CMP_LE_OQ>(
+            _mm512_test_epi32_mask(cm[j], _mm512_set1_epi32(0x8000)),
+            s.t_min,
+            s.t_max,
+        );
+        let lod_stop = if let Some((osz, dsz)) = k.lod {
+            let fp = _mm512_add_ps(_mm512_mul_ps(tc_max[j], dsz), osz);
+            _mm512_mask_cmp_ps_mask::<_CMP_GE_OQ>(valid, fp, s.se)
         } else {
-            child_relative(base, s, cm, push)
+            0
         };
-        prefetch::<Avx512>(base, _mm512_mask_blend_epi32(push, s.parent, child));
-        let halfs = _mm512_mul_ps(s.se, half);
-        let mut idx_push = zi;
-        for a in 0..3 {
-            let tcen = _mm512_add_ps(_mm512_mul_ps(halfs, s.coef[a]), tc[a]);
-            let up = _mm512_mask_cmp_ps_mask::<_CMP_GT_OQ>(push, tcen, s.t_min);
-            idx_push = _mm512_mask_or_epi32(idx_push, up, idx_push, _mm512_set1_epi32(1 << a));
-            s.pos[a] = _mm512_mask_add_ps(s.pos[a], up, s.pos[a], halfs);
-        }
-        s.idx = _mm512_mask_mov_epi32(s.idx, push, idx_push);
-        s.h = _mm512_mask_mov_ps(s.h, push, tc_max);
-        s.scale = _mm512_mask_sub_epi32(s.scale, push, s.scale, one);
-        s.se = _mm512_mask_mov_ps(s.se, push, halfs);
-        s.t_max = _mm512_mask_mov_ps(s.t_max, push, tv_max);
-        s.parent = _mm512_mask_mov_epi32(s.parent, push, child);
-        s.desc = _mm512_maskz_mov_epi32(!push, s.desc);
+        tv_max[j] = _mm512_min_ps(s.t_max, tc_max[j]);
+        let inter = !lod_stop & _mm512_mask_cmp_ps_mask::<_CMP_LE_OQ>(valid, s.t_min, tv_max[j]);
+        leaf[j] = _mm512_testn_epi32_mask(cm[j], _mm512_set1_epi32(0x80));
+        stop[j] = live[j] & (lod_stop | (inter & leaf[j]));
+        push[j] = live[j] & inter & !leaf[j];
+        adv[j] = live[j] & !(stop[j] | push[j]);
     }
-    if adv != 0 {
-        let mut step = zi;
-        let mut diff = zi;
-        for a in 0..3 {
-            let st = _mm512_cmp_ps_mask::<_CMP_LE_OQ>(tc[a], tc_max);
-            step = _mm512_mask_or_epi32(step, st, step, _mm512_set1_epi32(1 << a));
-            s.pos[a] = _mm512_mask_sub_ps(s.pos[a], adv & st, s.pos[a], s.se);
-            let back = _mm512_add_ps(s.pos[a], s.se);
-            let x = _mm512_xor_si512(_mm512_castps_si512(s.pos[a]), _mm512_castps_si512(back));
-            diff = _mm512_mask_or_epi32(diff, st, diff, x);
-        }
-        s.t_min = _mm512_mask_mov_ps(s.t_min, adv, tc_max);
-        let idx_adv = _mm512_xor_si512(s.idx, step);
-        s.idx = _mm512_mask_mov_epi32(s.idx, adv, idx_adv);
-        let pop = _mm512_mask_test_epi32_mask(adv, idx_adv, step);
-        if pop != 0 {
-            let e = _mm512_castps_si512(_mm512_cvtepi32_ps(diff));
-            let scale = _mm512_sub_epi32(_mm512_srli_epi32::<23>(e), _mm512_set1_epi32(127));
-            exit = _mm512_mask_cmpgt_epi32_mask(pop, scale, _mm512_set1_epi32(S_MAX - 1));
-            let ok = pop & !exit;
-            let sidx = _mm512_add_epi32(lane_base, scale);
-            s.parent = _mm512_mask_i32gather_epi32::<4>(s.parent, ok, sidx, stack_node.as_ptr());
-            s.t_max = _mm512_mask_i32gather_ps::<4>(s.t_max, ok, sidx, stack_tmax.as_ptr());
+    if push.iter().any(|&m| m != 0) {
+        for j in 0..N {
+            let g = &mut *gs[j];
+            let (s, push) = (&mut g.s, push[j]);
+            let keep = _mm512_mask_cmp_ps_mask::<_CMP_LT_OQ>(push, tc_max[j], s.h);
+            let entry = _mm512_add_epi32(lane_base, s.scale);
+            let at = _mm512_mask_blend_epi32(keep, _mm512_set1_epi32(SPARE as i32), entry);
+            write_stack::<Avx512>(at, s.parent, s.t_max, &mut g.stack_node, &mut g.stack_tmax);
+            let child = if A::ABSOLUTE {
+                let hi_slot = _mm512_add_epi32(slot[j], one);
+                let hi = _mm512_mask_i32gather_epi32::<4>(zi, push, hi_slot, base);
+                _mm512_add_epi32(hi, _mm512_xor_si512(shift[j], _mm512_set1_epi32(7)))
+            } else {
+                child_relative(base, s, cm[j], push)
+            };
+            prefetch::<Avx512>(base, _mm512_mask_blend_epi32(push, s.parent, child));
+            let halfs = _mm512_mul_ps(s.se, half);
+            let mut idx_push = zi;
             for a in 0..3 {
-                let sh = _mm512_srlv_epi32(_mm512_castps_si512(s.pos[a]), scale);
-                let rounded = _mm512_castsi512_ps(_mm512_sllv_epi32(sh, scale));
-                s.pos[a] = _mm512_mask_mov_ps(s.pos[a], ok, rounded);
+                let tcen = _mm512_add_ps(_mm512_mul_ps(halfs, s.coef[a]), tc[j][a]);
+                let up = _mm512_mask_cmp_ps_mask::<_CMP_GT_OQ>(push, tcen, s.t_min);
+                idx_push = _mm512_mask_or_epi32(idx_push, up, idx_push, _mm512_set1_epi32(1 << a));
+                s.pos[a] = _mm512_mask_add_ps(s.pos[a], up, s.pos[a], halfs);
             }
-            let se =
-                _mm512_slli_epi32::<23>(_mm512_add_epi32(scale, _mm512_set1_epi32(127 - S_MAX)));
-            s.scale = _mm512_mask_mov_epi32(s.scale, ok, scale);
-            s.se = _mm512_mask_mov_ps(s.se, ok, _mm512_castsi512_ps(se));
-            s.idx = _mm512_mask_mov_epi32(s.idx, ok, pop_idx(&s.pos, scale));
-            s.h = _mm512_maskz_mov_ps(!ok, s.h);
-            s.desc = _mm512_maskz_mov_epi32(!ok, s.desc);
+            s.idx = _mm512_mask_mov_epi32(s.idx, push, idx_push);
+            s.h = _mm512_mask_mov_ps(s.h, push, tc_max[j]);
+            s.scale = _mm512_mask_sub_epi32(s.scale, push, s.scale, one);
+            s.se = _mm512_mask_mov_ps(s.se, push, halfs);
+            s.t_max = _mm512_mask_mov_ps(s.t_max, push, tv_max[j]);
+            s.parent = _mm512_mask_mov_epi32(s.parent, push, child);
+            s.desc = _mm512_maskz_mov_epi32(!push, s.desc);
+        }
+    }
+    if adv.iter().any(|&m| m != 0) {
+        let (mut pop, mut diff) = ([m0; N], [zi; N]);
+        for j in 0..N {
+            let (s, adv) = (&mut gs[j].s, adv[j]);
+            let mut step = zi;
+            for a in 0..3 {
+                let st = _mm512_cmp_ps_mask::<_CMP_LE_OQ>(tc[j][a], tc_max[j]);
+                step = _mm512_mask_or_epi32(step, st, step, _mm512_set1_epi32(1 << a));
+                s.pos[a] = _mm512_mask_sub_ps(s.pos[a], adv & st, s.pos[a], s.se);
+                let back = _mm512_add_ps(s.pos[a], s.se);
+                let x = _mm512_xor_si512(_mm512_castps_si512(s.pos[a]), _mm512_castps_si512(back));
+                diff[j] = _mm512_mask_or_epi32(diff[j], st, diff[j], x);
+            }
+            s.t_min = _mm512_mask_mov_ps(s.t_min, adv, tc_max[j]);
+            let idx_adv = _mm512_xor_si512(s.idx, step);
+            s.idx = _mm512_mask_mov_epi32(s.idx, adv, idx_adv);
+            pop[j] = _mm512_mask_test_epi32_mask(adv, idx_adv, step);
+        }
+        if pop.iter().any(|&m| m != 0) {
+            for j in 0..N {
+                let g = &mut *gs[j];
+                let (s, pop) = (&mut g.s, pop[j]);
+                let e = _mm512_castps_si512(_mm512_cvtepi32_ps(diff[j]));
+                let scale = _mm512_sub_epi32(_mm512_srli_epi32::<23>(e), _mm512_set1_epi32(127));
+                exit[j] = _mm512_mask_cmpgt_epi32_mask(pop, scale, _mm512_set1_epi32(S_MAX - 1));
+                let ok = pop & !exit[j];
+                let sidx = _mm512_add_epi32(lane_base, scale);
+                s.parent =
+                    _mm512_mask_i32gather_epi32::<4>(s.parent, ok, sidx, g.stack_node.as_ptr());
+                s.t_max = _mm512_mask_i32gather_ps::<4>(s.t_max, ok, sidx, g.stack_tmax.as_ptr());
+                for a in 0..3 {
+                    let sh = _mm512_srlv_epi32(_mm512_castps_si512(s.pos[a]), scale);
+                    let rounded = _mm512_castsi512_ps(_mm512_sllv_epi32(sh, scale));
+                    s.pos[a] = _mm512_mask_mov_ps(s.pos[a], ok, rounded);
+                }
+                let se = _mm512_slli_epi32::<23>(_mm512_add_epi32(
+                    scale,
+                    _mm512_set1_epi32(127 - S_MAX),
+                ));
+                s.scale = _mm512_mask_mov_epi32(s.scale, ok, scale);
+                s.se = _mm512_mask_mov_ps(s.se, ok, _mm512_castsi512_ps(se));
+                s.idx = _mm512_mask_mov_epi32(s.idx, ok, pop_idx(&s.pos, scale));
+                s.h = _mm512_maskz_mov_ps(!ok, s.h);
+                s.desc = _mm512_maskz_mov_epi32(!ok, s.desc);
+            }
         }
     }
     // Lanes whose ray ended this iteration: the answer, then the next ray.
-    let done = (capped | stop | exit) as u32;
-    if done != 0 {
-        let (capped, stop, leaf) = (capped as u32, stop as u32, leaf as u32);
-        answer::<Avx512, A>(
-            g,
-            k,
-            Ended {
-                done,
-                capped,
-                stop,
-                leaf,
-            },
-            out,
-        );
+    for j in 0..N {
+        let done = (capped[j] | stop[j] | exit[j]) as u32;
+        if done != 0 {
+            let (capped, stop, leaf) = (capped[j] as u32, stop[j] as u32, leaf[j] as u32);
+            answer::<Avx512, A>(
+                &mut *gs[j],
+                k,
+                Ended {
+                    done,
+                    capped,
+                    stop,
+                    leaf,
+                },
+                out,
+            );
+        }
     }
 }

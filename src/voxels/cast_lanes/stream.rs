@@ -1,12 +1,13 @@
 //! The lane loop's frame, shared by its instruction sets: the lanes' ESVO
 //! state ([`State`]), the ray queue that refills a lane when its ray ends
-//! ([`Queue`]), the lane groups and the stream that steps them in turn
+//! ([`Queue`]), the lane groups and the stream that steps them together
 //! ([`stream`]), and the answers of finished lanes. What an instruction set
 //! brings is its vectors, its lane masks and its loop iteration
 //! ([`Isa::step`]).
 
 use crate::voxels::cast::{finish, start, Addressing, CastHit, CastParams, Start, Stop, S_MAX};
 use crate::voxels::set_bits::set_bits;
+use std::cell::Cell;
 
 /// Lane groups per stream. Measured in one run (shared machine, 30
 /// interleaved rounds, sphere d10 and Menger d10, octree and DAG, 2^18
@@ -16,6 +17,10 @@ use crate::voxels::set_bits::set_bits;
 /// sixteen AVX-512 lanes (whose one group's state would fit the 32
 /// registers), one group read 0.94-0.98x of two, and eight AVX2 lanes
 /// 0.88-0.91x (quiet Zen 5, `voxels_gpu_sphere_d10`, two interleaved runs).
+/// Since the seventeenth session one step advances both groups with their
+/// operations interleaved phase by phase ([`Isa::step`]); three or four
+/// groups that way read 0.76-0.81x of two (their state spills; same Zen 5,
+/// single-thread harness, docs/PERF.md).
 const G: usize = 2;
 
 /// The most lanes an instruction set has.
@@ -60,9 +65,21 @@ pub(super) trait Isa: Sized {
     fn f_lanes(v: &mut Self::F) -> &mut [f32];
     /// The lanes of `v`.
     fn i_lanes(v: &mut Self::I) -> &mut [i32];
-    /// One loop iteration of every live lane of `g`, then the answers of the
-    /// lanes whose ray ended ([`answer`]).
-    unsafe fn step<A: Addressing>(g: &mut Group<Self>, k: &Consts<Self>, out: &mut [CastHit<f32>]);
+    /// One loop iteration of every live lane of the groups `g`, then the
+    /// answers of the lanes whose ray ended ([`answer`]). The groups'
+    /// operations are interleaved phase by phase (descriptor gathers, then
+    /// the masks, PUSH, ADVANCE, POP, each a loop over the groups), so one
+    /// group's gather latency overlaps the other's arithmetic within the
+    /// CPU's reorder window; a group with no live lane passes through as
+    /// empty masks. Against the groups stepped in turn, one process
+    /// (seventeenth session, Zen 5, 512^2 camera rays, octree): AVX-512
+    /// 0.88/0.94 of the time (sphere / Menger, from the beam's starts),
+    /// 0.85/0.92 from `near`; AVX2 0.91-0.93/0.95-0.98 and 0.90-0.91/0.93-0.96.
+    unsafe fn step<A: Addressing, const N: usize>(
+        g: [&mut Group<Self>; N],
+        k: &Consts<Self>,
+        out: &mut [CastHit<f32>],
+    );
 }
 
 /// The lanes' ESVO state, one lane per ray (`act`: the lanes that hold a
@@ -146,12 +163,18 @@ impl<V: Isa> State<V> {
     }
 }
 
-/// The rays waiting for a lane, and which ray each lane holds.
+/// The rays waiting for a lane, and which ray each lane holds. The
+/// groups of a stream share `next`, so a freed lane of either group takes
+/// the next ray in order: the groups work on neighbouring rays and run dry
+/// together. Against each group taking its own half of the rays (one
+/// process, seventeenth session, Zen 5, octree, interleaved step): 0.96-0.98
+/// of the time from the beam's starts and 0.98-0.99 from `near` at 512^2,
+/// 0.97-1.01 / 0.95-0.99 at 1920x1080.
 struct Queue<'r> {
     o: &'r [[f32; 3]],
     d: &'r [[f32; 3]],
     near: Option<&'r [f64]>,
-    next: usize,
+    next: &'r Cell<usize>,
     end: usize,
     ray: [usize; W_MAX],
     starts: [Option<Start<f32>>; W_MAX],
@@ -168,9 +191,9 @@ impl Queue<'_> {
         p: &CastParams,
         out: &mut [CastHit<f32>],
     ) {
-        while self.next < self.end {
-            let i = self.next;
-            self.next += 1;
+        while self.next.get() < self.end {
+            let i = self.next.get();
+            self.next.set(i + 1);
             let st = match self.near {
                 None => start(self.o[i], self.d[i], p),
                 // A beam tile that meets nothing ([`crate::voxels::beam`]).
@@ -298,10 +321,10 @@ pub(super) fn answer<V: Isa, A: Addressing>(
     }
 }
 
-/// Streams the rays `(o[i], d[i])` through [`G`] groups of lanes (the
-/// rays split into `G` consecutive runs, one per group), one iteration of
-/// each live group in turn, writing `out[i]`: the groups' loads are
-/// independent, so one group's gathers overlap the others' work.
+/// Streams the rays `(o[i], d[i])` through [`G`] groups of lanes fed from
+/// one [`Queue`] position, one iteration of every group per [`Isa::step`],
+/// writing `out[i]`: the groups' loads are independent, so one group's
+/// gathers overlap the others' work.
 ///
 /// # Safety
 /// The CPU must have `V`'s instructions and `2 * nodes.len()` must fit an
@@ -336,8 +359,8 @@ pub(super) unsafe fn stream<V: Isa, A: Addressing>(
             b
         },
     };
-    let n = o.len();
-    let mut g: [Group<V>; G] = std::array::from_fn(|j| Group {
+    let next = Cell::new(0);
+    let mut g: [Group<V>; G] = std::array::from_fn(|_| Group {
         s: State::idle(),
         stack_node: [0; STACK],
         stack_tmax: [0.0; STACK],
@@ -345,8 +368,8 @@ pub(super) unsafe fn stream<V: Isa, A: Addressing>(
             o,
             d,
             near,
-            next: j * n / G,
-            end: (j + 1) * n / G,
+            next: &next,
+            end: o.len(),
             ray: [usize::MAX; W_MAX],
             starts: [None; W_MAX],
         },
@@ -356,16 +379,7 @@ pub(super) unsafe fn stream<V: Isa, A: Addressing>(
             g.q.refill(&mut g.s, l, p, out);
         }
     }
-    loop {
-        let mut live = false;
-        for g in g.iter_mut() {
-            if V::bits(g.s.act) != 0 {
-                live = true;
-                V::step::<A>(g, &k, out);
-            }
-        }
-        if !live {
-            return;
-        }
+    while g.iter().any(|g| V::bits(g.s.act) != 0) {
+        V::step::<A, G>(g.each_mut(), &k, out);
     }
 }
