@@ -19,8 +19,8 @@ use std::cell::Cell;
 /// 0.88-0.91x (quiet Zen 5, `voxels_gpu_sphere_d10`, two interleaved runs).
 /// Since the seventeenth session one step advances both groups with their
 /// operations interleaved phase by phase ([`Isa::step`]); three or four
-/// groups that way read 0.76-0.81x of two (their state spills; same Zen 5,
-/// single-thread harness, docs/PERF.md).
+/// groups that way ran at 0.72-0.79x the speed of two (their state spills;
+/// same Zen 5, single-thread harness, docs/PERF.md).
 const G: usize = 2;
 
 /// The most lanes an instruction set has.
