@@ -164,9 +164,9 @@ impl<V: Isa> State<V> {
 }
 
 /// The rays waiting for a lane, and which ray each lane holds. The
-/// groups of a stream share `next`, so a freed lane of either group takes
-/// the next ray in order: the groups work on neighbouring rays and run dry
-/// together. Against each group taking its own half of the rays (one
+/// groups of a stream hold the same rays and share `next`, so a freed lane
+/// of either group takes the next ray in order: the groups work on
+/// neighbouring rays and run dry together. Against each group taking its own half of the rays (one
 /// process, seventeenth session, Zen 5, octree, interleaved step): 0.96-0.98
 /// of the time from the beam's starts and 0.98-0.99 from `near` at 512^2,
 /// 0.97-1.01 / 0.95-0.99 at 1920x1080.
@@ -175,7 +175,6 @@ struct Queue<'r> {
     d: &'r [[f32; 3]],
     near: Option<&'r [f64]>,
     next: &'r Cell<usize>,
-    end: usize,
     ray: [usize; W_MAX],
     starts: [Option<Start<f32>>; W_MAX],
 }
@@ -191,7 +190,7 @@ impl Queue<'_> {
         p: &CastParams,
         out: &mut [CastHit<f32>],
     ) {
-        while self.next.get() < self.end {
+        while self.next.get() < self.o.len() {
             let i = self.next.get();
             self.next.set(i + 1);
             let st = match self.near {
@@ -369,7 +368,6 @@ pub(super) unsafe fn stream<V: Isa, A: Addressing>(
             d,
             near,
             next: &next,
-            end: o.len(),
             ray: [usize::MAX; W_MAX],
             starts: [None; W_MAX],
         },
