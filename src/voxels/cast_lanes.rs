@@ -5,12 +5,13 @@
 //! load `nodes[2 * parent]`: each iteration waits for it, and the branch on
 //! it mispredicts. Here each lane carries its own ESVO state (position,
 //! scale, `t_min`/`t_max`, `h`, parent, descriptor, its own stack of
-//! `S_MAX + 1` entries), and one loop iteration advances every live lane:
+//! `S_MAX + 1` parent slots: POP recomputes `t_max` from the parent's cube
+//! instead of reading it back), and one loop iteration advances every live lane:
 //! the descriptors of all lanes are one gather (eight or sixteen loads in
 //! flight), PUSH, ADVANCE and POP are computed on every lane and blended by
 //! masks (no per-lane branch; the step branches only on whether any lane
 //! pushes, advances, pops or follows a far pointer), child
-//! addresses and POP's stack reads are gathers, a PUSH prefetches each
+//! addresses and POP's stack read are gathers, a PUSH prefetches each
 //! pushed lane's child descriptor (the group's next step gathers it after
 //! the other group's step has run; on the DAG since the tenth session:
 //! incoherent 1.25-1.53x, coherent 0.96-1.00x on an AVX2 box, docs/PERF.md),

@@ -205,7 +205,7 @@ unsafe fn step<A: Addressing, const N: usize>(
             let entry = _mm256_add_epi32(lane_base, s.scale);
             let write = _mm256_and_si256(push, keep);
             let at = _mm256_blendv_epi8(_mm256_set1_epi32(SPARE as i32), entry, write);
-            write_stack::<Avx2>(at, s.parent, s.t_max, &mut g.stack_node, &mut g.stack_tmax);
+            write_stack::<Avx2>(at, s.parent, &mut g.stack);
             let child = if A::ABSOLUTE {
                 let hi_slot = _mm256_add_epi32(slot[j], one);
                 let hi = _mm256_mask_i32gather_epi32::<4>(zi, base, hi_slot, push);
@@ -271,9 +271,18 @@ unsafe fn step<A: Addressing, const N: usize>(
                 let ok = _mm256_andnot_si256(exit[j], pop);
                 let okf = _mm256_castsi256_ps(ok);
                 let sidx = _mm256_add_epi32(lane_base, scale);
-                let (sn, st) = (g.stack_node.as_ptr(), g.stack_tmax.as_ptr());
-                s.parent = _mm256_mask_i32gather_epi32::<4>(s.parent, sn, sidx, ok);
-                s.t_max = _mm256_mask_i32gather_ps::<4>(s.t_max, st, sidx, okf);
+                s.parent = _mm256_mask_i32gather_epi32::<4>(s.parent, g.stack.as_ptr(), sidx, ok);
+                // `t_max`: the exit of the parent's cube, `pos` rounded at
+                // `scale + 1` ([`Group::stack`]).
+                let up = _mm256_add_epi32(scale, one);
+                let mut exit_t = [zf; 3];
+                for a in 0..3 {
+                    let sh = _mm256_srlv_epi32(_mm256_castps_si256(s.pos[a]), up);
+                    let corner = _mm256_castsi256_ps(_mm256_sllv_epi32(sh, up));
+                    exit_t[a] = _mm256_sub_ps(_mm256_mul_ps(corner, s.coef[a]), s.bias[a]);
+                }
+                let exit_max = _mm256_min_ps(_mm256_min_ps(exit_t[0], exit_t[1]), exit_t[2]);
+                s.t_max = _mm256_blendv_ps(s.t_max, _mm256_min_ps(s.t_max0, exit_max), okf);
                 for a in 0..3 {
                     let sh = _mm256_srlv_epi32(_mm256_castps_si256(s.pos[a]), scale);
                     let rounded = _mm256_castsi256_ps(_mm256_sllv_epi32(sh, scale));

@@ -198,7 +198,7 @@ unsafe fn step<A: Addressing, const N: usize>(
             let keep = _mm512_mask_cmp_ps_mask::<_CMP_LT_OQ>(push, tc_max[j], s.h);
             let entry = _mm512_add_epi32(lane_base, s.scale);
             let at = _mm512_mask_blend_epi32(keep, _mm512_set1_epi32(SPARE as i32), entry);
-            write_stack::<Avx512>(at, s.parent, s.t_max, &mut g.stack_node, &mut g.stack_tmax);
+            write_stack::<Avx512>(at, s.parent, &mut g.stack);
             let child = if A::ABSOLUTE {
                 let hi_slot = _mm512_add_epi32(slot[j], one);
                 let hi = _mm512_mask_i32gather_epi32::<4>(zi, push, hi_slot, base);
@@ -251,9 +251,18 @@ unsafe fn step<A: Addressing, const N: usize>(
                 exit[j] = _mm512_mask_cmpgt_epi32_mask(pop, scale, _mm512_set1_epi32(S_MAX - 1));
                 let ok = pop & !exit[j];
                 let sidx = _mm512_add_epi32(lane_base, scale);
-                s.parent =
-                    _mm512_mask_i32gather_epi32::<4>(s.parent, ok, sidx, g.stack_node.as_ptr());
-                s.t_max = _mm512_mask_i32gather_ps::<4>(s.t_max, ok, sidx, g.stack_tmax.as_ptr());
+                s.parent = _mm512_mask_i32gather_epi32::<4>(s.parent, ok, sidx, g.stack.as_ptr());
+                // `t_max`: the exit of the parent's cube, `pos` rounded at
+                // `scale + 1` ([`Group::stack`]).
+                let up = _mm512_add_epi32(scale, one);
+                let mut exit_t = [zf; 3];
+                for a in 0..3 {
+                    let sh = _mm512_srlv_epi32(_mm512_castps_si512(s.pos[a]), up);
+                    let corner = _mm512_castsi512_ps(_mm512_sllv_epi32(sh, up));
+                    exit_t[a] = _mm512_sub_ps(_mm512_mul_ps(corner, s.coef[a]), s.bias[a]);
+                }
+                let exit_max = _mm512_min_ps(_mm512_min_ps(exit_t[0], exit_t[1]), exit_t[2]);
+                s.t_max = _mm512_mask_min_ps(s.t_max, ok, s.t_max0, exit_max);
                 for a in 0..3 {
                     let sh = _mm512_srlv_epi32(_mm512_castps_si512(s.pos[a]), scale);
                     let rounded = _mm512_castsi512_ps(_mm512_sllv_epi32(sh, scale));

@@ -83,13 +83,15 @@ pub(super) trait Isa: Sized {
 }
 
 /// The lanes' ESVO state, one lane per ray (`act`: the lanes that hold a
-/// ray).
+/// ray; `t_max0`: the ray's `t_max` at the root, from which POP recomputes
+/// `t_max`, see [`Group::stack`]).
 pub(super) struct State<V: Isa> {
     pub pos: [V::F; 3],
     pub coef: [V::F; 3],
     pub bias: [V::F; 3],
     pub t_min: V::F,
     pub t_max: V::F,
+    pub t_max0: V::F,
     pub h: V::F,
     pub se: V::F,
     pub octant: V::I,
@@ -112,6 +114,7 @@ impl<V: Isa> State<V> {
             bias: [zf; 3],
             t_min: zf,
             t_max: zf,
+            t_max0: zf,
             h: zf,
             se: zf,
             octant: zi,
@@ -134,6 +137,7 @@ impl<V: Isa> State<V> {
         }
         V::f_lanes(&mut self.t_min)[l] = s.t_min;
         V::f_lanes(&mut self.t_max)[l] = s.t_max;
+        V::f_lanes(&mut self.t_max0)[l] = s.t_max;
         V::f_lanes(&mut self.h)[l] = s.h;
         V::f_lanes(&mut self.se)[l] = 0.5;
         V::i_lanes(&mut self.octant)[l] = s.octant as i32;
@@ -229,8 +233,22 @@ pub(super) struct Consts<'n, V: Isa> {
 /// One set of `V::W` lanes: their state, stacks and ray queue.
 pub(super) struct Group<'r, V: Isa> {
     pub s: State<V>,
-    pub stack_node: [i32; STACK],
-    pub stack_tmax: [f32; STACK],
+    /// Each lane's parent slot per scale (the ESVO stack without its
+    /// `t_max`: while a node's children are walked, `t_max` is
+    /// `min(t_max0, exit of the node's cube)`, because the exit times of
+    /// nested cubes computed as the loop computes them, `corner * coef -
+    /// bias` with `coef < 0`, never grow from a cube to its child (the
+    /// corners grow, and rounding is monotone), so the `min` that PUSH
+    /// folds in level by level equals the last one; POP recomputes it from
+    /// `pos` rounded to the parent's scale, bit-identical to the value the
+    /// stack held). One scalar store a lane per PUSH and one gather per
+    /// POP less than with `t_max` on the stack, for six vector operations:
+    /// single-thread harness, Zen 5, octree, from the beam's starts, 0.88-0.92
+    /// (sphere d10), 0.92-0.96 (Menger d10) of the time; judge runs alternated
+    /// with the previous binary, 2 threads, sixteen lanes and beam, coherent
+    /// 1.00-1.13x, incoherent 1.01-1.15x (Menger's noisy), eight AVX2 lanes
+    /// 0.92-1.09x (docs/PERF.md, eighteenth session).
+    pub stack: [i32; STACK],
     q: Queue<'r>,
 }
 
@@ -249,34 +267,22 @@ pub(super) fn prefetch<V: Isa>(base: *const i32, mut slot: V::I) {
     }
 }
 
-/// PUSH's stack write: lane `l`'s `parent` and `t_max` at entry `at[l]`,
-/// its own `l * SD + scale` on the lanes that write and [`SPARE`] on the
-/// others, so the write has no branch on the lane mask. Measured in one
-/// process against a loop over the mask's bits (thread CPU time, medians of
+/// PUSH's stack write: lane `l`'s `parent` at entry `at[l]`, its own
+/// `l * SD + scale` on the lanes that write and [`SPARE`] on the others,
+/// so the write has no branch on the lane mask. Measured in one process
+/// against a loop over the mask's bits (thread CPU time, medians of
 /// 7-9 interleaved rounds, 2^18 rays, sphere d10 and Menger d10, shared
 /// 2-core Zen 4, docs/PERF.md ninth session): coherent 1.07-1.30x,
 /// incoherent 0.90-1.16x, 0 differing rays; AVX-512's masked scatter in
 /// its place was 1.00-1.03x of these stores on the octree and 0.86-0.94x
 /// on the DAG (both measured with eight lanes, not re-taken with sixteen).
 #[inline(always)]
-pub(super) fn write_stack<V: Isa>(
-    mut at: V::I,
-    mut parent: V::I,
-    mut t_max: V::F,
-    stack_node: &mut [i32; STACK],
-    stack_tmax: &mut [f32; STACK],
-) {
-    let (at, pv, tv) = (
-        V::i_lanes(&mut at),
-        V::i_lanes(&mut parent),
-        V::f_lanes(&mut t_max),
-    );
+pub(super) fn write_stack<V: Isa>(mut at: V::I, mut parent: V::I, stack: &mut [i32; STACK]) {
+    let (at, pv) = (V::i_lanes(&mut at), V::i_lanes(&mut parent));
     for l in 0..V::W {
         // `at` is `l * SD + scale` (scale < SD while the lane pushes) or
-        // SPARE: within both stacks.
-        let k = at[l] as usize;
-        stack_node[k] = pv[l];
-        stack_tmax[k] = tv[l];
+        // SPARE: within the stack.
+        stack[at[l] as usize] = pv[l];
     }
 }
 
@@ -361,8 +367,7 @@ pub(super) unsafe fn stream<V: Isa, A: Addressing>(
     let next = Cell::new(0);
     let mut g: [Group<V>; G] = std::array::from_fn(|_| Group {
         s: State::idle(),
-        stack_node: [0; STACK],
-        stack_tmax: [0.0; STACK],
+        stack: [0; STACK],
         q: Queue {
             o,
             d,
