@@ -246,8 +246,8 @@ pub(super) struct Group<'r, V: Isa> {
     /// single-thread harness, Zen 5, octree, from the beam's starts, 0.88-0.92
     /// (sphere d10), 0.92-0.96 (Menger d10) of the time; judge runs alternated
     /// with the previous binary, 2 threads, sixteen lanes and beam, coherent
-    /// 1.00-1.13x, incoherent 1.01-1.15x (Menger's noisy), eight AVX2 lanes
-    /// 0.92-1.09x (docs/PERF.md, eighteenth session).
+    /// 0.99-1.13x, incoherent 0.99-1.07x (runs that held still), eight AVX2
+    /// lanes 0.92-1.13x (docs/PERF.md, eighteenth session).
     pub stack: [i32; STACK],
     q: Queue<'r>,
 }
