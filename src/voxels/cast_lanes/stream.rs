@@ -241,8 +241,13 @@ pub(super) struct Group<'r, V: Isa> {
     /// corners grow, and rounding is monotone), so the `min` that PUSH
     /// folds in level by level equals the last one; POP recomputes it from
     /// `pos` rounded to the parent's scale, bit-identical to the value the
-    /// stack held). One scalar store a lane per PUSH and one gather per
-    /// POP less than with `t_max` on the stack, for six vector operations:
+    /// stack held; a stale entry, read where PUSH skipped its write because
+    /// the child's exit rounded onto the parent's, is the one case the two
+    /// can differ, on a ray the float planes already mis-traverse, and
+    /// there the lanes' stale parent slots differed from the per-ray
+    /// cast's before: the lane stacks are not cleared between rays). One
+    /// scalar store a lane per PUSH and one gather per POP less than with
+    /// `t_max` on the stack, for sixteen vector operations:
     /// single-thread harness, Zen 5, octree, from the beam's starts, 0.88-0.92
     /// (sphere d10), 0.92-0.96 (Menger d10) of the time; judge runs alternated
     /// with the previous binary, 2 threads, sixteen lanes and beam, coherent
