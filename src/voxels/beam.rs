@@ -545,6 +545,7 @@ mod tests {
     use crate::camera::Camera;
     use crate::rays::RayGen;
     use crate::real::Real;
+    use crate::rng::rand_f64;
     use crate::voxels::batch::Batch;
     use crate::voxels::cast::{Absolute, Relative};
     use crate::voxels::dag::build_dag;
@@ -657,13 +658,6 @@ mod tests {
             eprintln!("no AVX-512F on this CPU: the vector walk is not run, nothing to compare");
             return;
         }
-        let mut x = 0x9e37_79b9_7f4a_7c15u64;
-        let mut next = || {
-            x ^= x << 13;
-            x ^= x >> 7;
-            x ^= x << 17;
-            (x >> 11) as f64 / (1u64 << 53) as f64
-        };
         for (s, depth) in [
             (Shape::Sphere { radius: 0.8 }, 8),
             (Shape::Menger { level: 4 }, 8),
@@ -678,14 +672,16 @@ mod tests {
                 .flatten()
                 .collect();
             // Narrow and wide cones from origins outside and inside the root.
-            for k in 0..2000 {
-                let o = [0, 1, 2].map(|_| 5.0 * next() - 2.5);
+            for k in 0..2000u32 {
+                let u = |dim: u32| rand_f64(7, k, 0, dim);
+                let o = [0, 1, 2].map(|a| 5.0 * u(a) - 2.5);
                 // Toward the root, or anywhere.
                 let to_root = k % 2 == 0;
-                let axis = [0, 1, 2].map(|a| if to_root { -o[a] } else { 0.0 } + next() - 0.5);
-                let w = [0.002, 0.05, 0.3][k % 3];
+                let axis =
+                    [0, 1, 2].map(|a| if to_root { -o[a] } else { 0.0 } + u(3 + a as u32) - 0.5);
+                let w = [0.002, 0.05, 0.3][k as usize % 3];
                 let d: Vec<[f64; 3]> = (0..4)
-                    .map(|_| [0, 1, 2].map(|a| axis[a] + w * (next() - 0.5)))
+                    .map(|r| [0, 1, 2].map(|a| axis[a] + w * (u(6 + 3 * r + a as u32) - 0.5)))
                     .collect();
                 cones.extend(cone_around(d.into_iter().map(|d| (o, d))));
             }

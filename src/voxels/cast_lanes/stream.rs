@@ -170,10 +170,10 @@ impl<V: Isa> State<V> {
 /// The rays waiting for a lane, and which ray each lane holds. The
 /// groups of a stream hold the same rays and share `next`, so a freed lane
 /// of either group takes the next ray in order: the groups work on
-/// neighbouring rays and run dry together. Against each group taking its own half of the rays (one
-/// process, seventeenth session, Zen 5, octree, interleaved step): 0.96-0.98
-/// of the time from the beam's starts and 0.98-0.99 from `near` at 512^2,
-/// 0.97-1.01 / 0.95-0.99 at 1920x1080.
+/// neighbouring rays and run dry together. Against each group taking its
+/// own half of the rays (one process, seventeenth session, Zen 5, octree,
+/// interleaved step): 0.96-0.98 of the time from the beam's starts and
+/// 0.98-0.99 from `near` at 512^2, 0.97-1.01 / 0.95-0.99 at 1920x1080.
 struct Queue<'r> {
     o: &'r [[f32; 3]],
     d: &'r [[f32; 3]],
@@ -233,24 +233,26 @@ pub(super) struct Consts<'n, V: Isa> {
 /// One set of `V::W` lanes: their state, stacks and ray queue.
 pub(super) struct Group<'r, V: Isa> {
     pub s: State<V>,
-    /// Each lane's parent slot per scale (the ESVO stack without its
-    /// `t_max`: while a node's children are walked, `t_max` is
-    /// `min(t_max0, exit of the node's cube)`, because the exit times of
-    /// nested cubes computed as the loop computes them, `corner * coef -
-    /// bias` with `coef < 0`, never grow from a cube to its child (the
-    /// corners grow, and rounding is monotone), so the `min` that PUSH
-    /// folds in level by level equals the last one; POP recomputes it from
-    /// `pos` rounded to the parent's scale, bit-identical to the value the
-    /// stack held; a stale entry, read where PUSH skipped its write because
-    /// the child's exit rounded onto the parent's, is the one case the two
-    /// can differ, on a ray the float planes already mis-traverse, and
-    /// there the lanes' stale parent slots differed from the per-ray
-    /// cast's before: the lane stacks are not cleared between rays). One
-    /// scalar store a lane per PUSH and one gather per POP less than with
-    /// `t_max` on the stack, for sixteen vector operations:
-    /// single-thread harness, Zen 5, octree, from the beam's starts, 0.88-0.92
-    /// (sphere d10), 0.92-0.96 (Menger d10) of the time; judge runs alternated
-    /// with the previous binary, 2 threads, sixteen lanes and beam, coherent
+    /// Each lane's parent slot per scale: the ESVO stack without its
+    /// `t_max`, which POP recomputes as `min(t_max0, exit of the parent's
+    /// cube)` from `pos` rounded at `scale + 1`.
+    ///
+    /// Why that is the stacked value, bit for bit: exit times of nested
+    /// cubes computed as the loop computes them (`corner * coef - bias`,
+    /// `coef < 0`) never grow from a cube to its child (the corners grow and
+    /// rounding is monotone), so the `min` that PUSH folds in level by level
+    /// equals its last term. The one case the two can differ is a stale
+    /// entry, read where PUSH skipped its write because the child's exit
+    /// rounded onto the parent's: a ray the float planes already
+    /// mis-traverse, where the lanes' stale parent slots already differed
+    /// from the per-ray cast's (the lane stacks are not cleared between
+    /// rays).
+    ///
+    /// One scalar store a lane per PUSH and one gather per POP less than
+    /// with `t_max` on the stack, for sixteen vector operations: single-thread
+    /// harness, Zen 5, octree, from the beam's starts, 0.88-0.92 (sphere d10),
+    /// 0.92-0.96 (Menger d10) of the time; judge runs alternated with the
+    /// previous binary, 2 threads, sixteen lanes and beam, coherent
     /// 0.99-1.13x, incoherent 0.99-1.07x (runs that held still), eight AVX2
     /// lanes 0.92-1.13x (docs/PERF.md, eighteenth session).
     pub stack: [i32; STACK],
