@@ -692,6 +692,7 @@ mod tests {
                 let vector = unsafe { start_distance_avx512::<Relative>(&t.nodes, depth, c) };
                 assert_eq!(scalar.to_bits(), vector.to_bits(), "{s:?} octree {c:?}");
                 // The DAG, its own addressing, holds the same boxes.
+                // SAFETY: as above.
                 let dag = unsafe { start_distance_avx512::<Absolute>(&g.nodes, depth, c) };
                 let dag_scalar = start_distance_scalar::<Absolute>(&g.nodes, depth, c);
                 assert_eq!(dag_scalar.to_bits(), dag.to_bits(), "{s:?} DAG {c:?}");
