@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Runs hpjudge on a lent real GPU (the tool library's `device` machine: an
-# NVIDIA H100 with no Rust and no registry). Build here first, then carry
-# the stripped binary and the Vulkan loader:
+# NVIDIA Hopper, H100 or H200, with no Rust and no registry). Build here
+# first, then carry the stripped binary and the Vulkan loader:
 #
 #   cargo build --release --bin hpjudge
 #   mkdir -p .dev && cp target/release/hpjudge .dev/ && strip .dev/hpjudge
@@ -17,6 +17,11 @@
 #   render  hpjudge render of the Cornell box on the GPU at 512x512, 64 spp
 #   cases:F the GPU cases whose id contains F, with --dump-failing; the
 #           failing ones' tensors come back as $OUT/cases_F.tar.gz
+# Device time is short (15 minutes a task as of 2026-11-29, start-up
+# included; a command at most 10 minutes) and the whole suite took 523 s on
+# the H100: run `suite` alone or not at all. The GPU items issue 15 still
+# has open (docs/PERF.md, eighth session) fit one call:
+#   info perf:voxels_gpu_menger_d10_1080p cases:voxel_gpu cases:vol_tiny cases:gpu_vol_hash
 # Perf and info output lands in $OUT/results.tar.gz; the log is $OUT/log.txt; the last
 # lines printed are a summary (suite verdicts, perf metrics named by
 # HP_PERF_KEYS, a regex; default every metric).
