@@ -186,7 +186,13 @@ struct Queue<'r> {
 impl Queue<'_> {
     /// Fills lane `l` of `s` with the next ray that enters the root box
     /// (rays that miss it are answered at once); the lane goes idle when
-    /// none is left.
+    /// none is left. Inlined into the step: a call there clobbers every
+    /// vector register the step holds (single-thread harness, Zen 5, octree,
+    /// beam starts, against the call: AVX-512 sphere d10 0.89-1.00 of the
+    /// time, median 0.97, Menger d10 0.89-1.04, median 0.99; AVX2 lanes
+    /// 0.98-1.02; `finish` moved out of line the same way was 1.08-1.12
+    /// slower; docs/PERF.md, twentieth session).
+    #[inline(always)]
     fn refill<V: Isa>(
         &mut self,
         s: &mut State<V>,
