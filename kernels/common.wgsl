@@ -10,6 +10,27 @@ fn linear_id(gid: vec3<u32>, nwg: vec3<u32>, wg: u32) -> u32 {
     return gid.x + gid.y * nwg.x * wg;
 }
 
+// The camera ray (region order, n rays, w a row) that thread t casts, or n
+// for none. order 0: ray t. order 1: 8x8 pixel tiles per 64 threads, the
+// tile's pixels in Morton order (8 threads a 4x2 block, 32 an 8x4 block),
+// so a lock-step thread group holds neighbouring rays.
+// CPU twin: src/rays/thread_order.rs `thread_ray` (None = n).
+fn thread_ray(order: u32, t: u32, w: u32, n: u32) -> u32 {
+    var i = t;
+    if (order == 1u) {
+        let tile = t >> 6u;
+        let l = t & 63u;
+        let tiles_x = (w + 7u) / 8u;
+        let x = (tile % tiles_x) * 8u + ((l & 1u) | ((l >> 1u) & 2u) | ((l >> 2u) & 4u));
+        let y = (tile / tiles_x) * 8u + (((l >> 1u) & 1u) | ((l >> 2u) & 2u) | ((l >> 3u) & 4u));
+        if (x >= w || y >= n / w) {
+            return n;
+        }
+        i = y * w + x;
+    }
+    return min(i, n);
+}
+
 // ---- random numbers (SCENES.md "Random numbers") ---------------------------
 // CPU twin: src/rng.rs `pcg`, `rand_u32`, `rand_f32`. Parity case:
 // TESTS/gpu/manifest.yaml `gpu_rng_matches_cpu` (bit-exact).

@@ -54,7 +54,8 @@ struct VoxParams {
     n: u32,
     // cast_camera: 1 = write the generated rays to out_rays.
     write_rays: u32,
-    _pad0: u32,
+    // cast_camera: which ray a thread casts (common.wgsl `thread_ray`).
+    order: u32,
     _pad1: u32,
     _pad2: u32,
 }
@@ -374,11 +375,12 @@ fn esvo_cast(o: vec3<f32>, d: vec3<f32>) -> VoxHit {
     return r;
 }
 
-// Camera rays generated here (common.wgsl `camera_ray`, region order), then cast.
+// Camera rays generated here (common.wgsl `camera_ray`, region order), then cast;
+// thread t casts ray `thread_ray(V.order, t, ..)` and writes it at its region index.
 // CPU twin: src/voxels/cast.rs `cast` on src/rays.rs `f_ray::<f32>` rays.
 @compute @workgroup_size(64)
 fn cast_camera(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
-    let i = linear_id(gid, nwg, 64u);
+    let i = thread_ray(V.order, linear_id(gid, nwg, 64u), C.roi_w, V.n);
     if (i >= V.n) {
         return;
     }

@@ -6,6 +6,7 @@
 
 pub mod referee;
 pub mod referee_pinhole;
+pub mod thread_order;
 
 use crate::budget::{bytes_for, MemBudget};
 use crate::camera::Camera;

@@ -16,6 +16,7 @@ use super::rays::RayParams;
 use crate::budget::{bytes_for, MemBudget};
 use crate::camera::Camera;
 use crate::error::{Error, Result};
+use crate::rays::thread_order::{thread_count, ThreadOrder};
 use crate::rays::RayGen;
 
 /// Uniform of `kernels/voxels.wgsl` (keep in sync with `struct VoxParams`
@@ -32,7 +33,8 @@ pub struct VoxParams {
     pub max_iter: u32,
     pub n: u32,
     pub write_rays: u32,
-    pub _pad: [u32; 3],
+    pub order: u32,
+    pub _pad: [u32; 2],
 }
 const _: () = assert!(std::mem::size_of::<VoxParams>() == 48);
 
@@ -86,6 +88,8 @@ pub struct GpuCastParams {
     /// `(orig_size / 2, dir_size / 2)` in f32, as the CPU cast computes them.
     pub lod: Option<(f32, f32)>,
     pub max_iter: u32,
+    /// Which camera ray a thread casts (`cast_camera` only).
+    pub order: ThreadOrder,
 }
 
 /// What a batch returned: per-ray results, the camera rays when asked for
@@ -225,12 +229,14 @@ impl<'c> GpuOctree<'c> {
             max_iter: self.kernel_max_iter(p.max_iter),
             n,
             write_rays: write_rays as u32,
-            _pad: [0; 3],
+            order: p.order as u32,
+            _pad: [0; 2],
         })
     }
 
-    /// Casts the camera rays of `gen`'s region (region order), generated on
-    /// the GPU; `keep_rays` also reads the rays back.
+    /// Casts the camera rays of `gen`'s region, generated on the GPU, each
+    /// thread the ray `p.order` gives it; results (and, with `keep_rays`,
+    /// the rays read back) in region order.
     pub fn cast_camera(
         &self,
         cam: &Camera,
@@ -270,7 +276,7 @@ impl<'c> GpuOctree<'c> {
                 (6, &self.contours),
                 (7, &self.lut),
             ],
-            n,
+            n: thread_count(p.order, roi.width, roi.height),
             wg: 64,
         };
         let read: Vec<&wgpu::Buffer> = if keep_rays {

@@ -12,6 +12,7 @@ use crate::error::Result;
 use crate::gpu::voxel_attrs::GpuAttrs;
 use crate::gpu::voxels::{GpuCast, GpuCastParams, GpuOctree, GpuVoxelHit, CONTOUR_LUT_LEN};
 use crate::gpu::GpuContext;
+use crate::rays::thread_order::ThreadOrder;
 use crate::rays::RayGen;
 
 use super::attributes::{AttrForm, Attributes};
@@ -78,7 +79,8 @@ pub fn cast_batch(
 
 /// `p` in the kernel's f32: near and far as `F::of` rounds them (far
 /// clamped to `f32::MAX`, a bound no ray reaches in the unit box), the LOD
-/// footprint halved after rounding, as the CPU cast does.
+/// footprint halved after rounding, as the CPU cast does; camera rays in
+/// [`ThreadOrder::Tiles`].
 pub fn gpu_params(p: &CastParams) -> GpuCastParams {
     GpuCastParams {
         near: p.near as f32,
@@ -87,6 +89,7 @@ pub fn gpu_params(p: &CastParams) -> GpuCastParams {
             .lod
             .map(|l| (l.orig_size as f32 * 0.5, l.dir_size as f32 * 0.5)),
         max_iter: p.max_iter,
+        order: ThreadOrder::Tiles,
     }
 }
 

@@ -7,7 +7,9 @@ use super::timed;
 use crate::budget::{bytes_for, MemBudget};
 use crate::camera::Camera;
 use crate::error::Result;
+use crate::gpu::voxels::{GpuCast, GpuCastParams, GpuOctree};
 use crate::gpu::GpuContext;
+use crate::rays::thread_order::{warp_efficiency, ThreadOrder};
 use crate::rays::RayGen;
 use crate::real::Real;
 use crate::scene::voxels::VoxelScene;
@@ -280,6 +282,100 @@ fn differing<F: Real>(a: &VoxelHits<F>, b: &VoxelHits<F>) -> u64 {
         .count() as u64
 }
 
+/// The GPU camera cast in both [`ThreadOrder`]s, per order: seconds a
+/// cast (submit to readback; the kernels' where the adapter has
+/// timestamps), the fraction of lane-iterations 32-lane warps spend on work
+/// ([`warp_efficiency`] of the kernel's own iteration counts), and the rays
+/// whose results differ between the orders (none: only the thread moves).
+struct Orders {
+    gpu_s: [f64; 2],
+    kernel_s: [Option<f64>; 2],
+    warp32: [f64; 2],
+    differing: u64,
+    rays: f64,
+}
+
+impl Orders {
+    /// `{s}_gpu_coherent_rows_kernel_mrays_per_s` (`..._rows_mrays_per_s`
+    /// without timestamps; the tiled figures are the scenario's
+    /// `{s}_gpu_coherent_*`), `{s}_gpu_coherent_tiles_over_rows` (speed
+    /// ratio, kernels' clock where there is one),
+    /// `{s}_coherent_warp32_efficiency_{rows,tiles}`,
+    /// `{s}_gpu_coherent_order_differing_rays`.
+    fn report(&self, s: &str, out: &mut Outputs) {
+        let secs = |k: usize| self.kernel_s[k].unwrap_or(self.gpu_s[k]);
+        let clock = if self.kernel_s[0].is_some() {
+            "kernel_"
+        } else {
+            ""
+        };
+        out.metric(
+            &format!("{s}_gpu_coherent_rows_{clock}mrays_per_s"),
+            self.rays / secs(0).max(1e-12) / 1e6,
+        );
+        for (k, name) in ["rows", "tiles"].into_iter().enumerate() {
+            out.metric(
+                &format!("{s}_coherent_warp32_efficiency_{name}"),
+                self.warp32[k],
+            );
+        }
+        out.metric(
+            &format!("{s}_gpu_coherent_tiles_over_rows"),
+            secs(0) / secs(1).max(1e-12),
+        );
+        out.metric(
+            &format!("{s}_gpu_coherent_order_differing_rays"),
+            self.differing as f64,
+        );
+    }
+}
+
+/// [`ROUNDS`] interleaved rounds of the camera cast in [`ThreadOrder::Rows`]
+/// and [`ThreadOrder::Tiles`] (which goes first alternates; `p.order` is
+/// ignored) after one warm-up cast; seconds a cast averaged over the
+/// rounds, and the last tiled cast.
+fn thread_orders(
+    g: &GpuOctree,
+    (cam, gen): (&Camera, &RayGen),
+    p: &GpuCastParams,
+    budget: &MemBudget,
+) -> Result<(Orders, GpuCast)> {
+    let orders = [ThreadOrder::Rows, ThreadOrder::Tiles];
+    let mut ord = Orders {
+        gpu_s: [0.0; 2],
+        kernel_s: [Some(0.0); 2],
+        warp32: [0.0; 2],
+        differing: 0,
+        rays: 0.0,
+    };
+    let cast = |order| g.cast_camera(cam, gen, &GpuCastParams { order, ..*p }, false, budget);
+    // Warm-up: the entry's first dispatch may compile it.
+    cast(ThreadOrder::Tiles)?;
+    let mut last: [Option<GpuCast>; 2] = [None, None];
+    for round in 0..ROUNDS as usize {
+        for k in [round % 2, 1 - round % 2] {
+            let c = cast(orders[k])?;
+            ord.gpu_s[k] += c.gpu_s;
+            ord.kernel_s[k] = ord.kernel_s[k].zip(c.kernel_s).map(|(a, b)| a + b);
+            last[k] = Some(c);
+        }
+    }
+    let [Some(rows), Some(tiles)] = last else {
+        unreachable!("ROUNDS > 0")
+    };
+    let r = ROUNDS as f64;
+    ord.gpu_s = ord.gpu_s.map(|s| s / r);
+    ord.kernel_s = ord.kernel_s.map(|s| s.map(|s| s / r));
+    let iters: Vec<u32> = tiles.hits.iter().map(|h| h.iters).collect();
+    ord.rays = iters.len() as f64;
+    let w = gen.region().width;
+    ord.warp32 = orders.map(|order| warp_efficiency(&iters, order, w, 32));
+    ord.differing = (rows.hits.iter().zip(&tiles.hits))
+        .filter(|(a, b)| bytemuck::bytes_of(*a) != bytemuck::bytes_of(*b))
+        .count() as u64;
+    Ok((ord, tiles))
+}
+
 /// Octree against DAG casts of the same rays in `repeats` alternating
 /// rounds (both see the same machine load): `<name>_octree_mrays_per_cpu_s`,
 /// `<name>_dag_mrays_per_cpu_s`, `<name>_dag_over_octree`, counter
@@ -325,6 +421,8 @@ pub const ROUNDS: u32 = 3;
 /// per-ray, per CPU-second, same run),
 /// `{structure}_{set}_{path}_differing_rays` (hit, t, leaf or normal bits
 /// against per-ray), `{structure}_gpu_{set}_mrays_per_s`,
+/// the coherent GPU figures in [`ThreadOrder::Tiles`] with the
+/// [`Orders`] metrics beside them ([`thread_orders`]),
 /// `{structure}_{set}_mean_iters` (per-ray; the GPU's are the same),
 /// `{structure}_{set}_{path}_mean_iters` (fewer on the beam path),
 /// `{structure}_{set}_node_bytes_per_ray` (4 x node words the kernel read;
@@ -385,17 +483,19 @@ pub fn cpu_vs_gpu(
                 &format!("{sname}_{set}_mean_iters"),
                 mean(res[0].iters.iter().map(|&i| i as f64)),
             );
-            let gc = if set == "coherent" {
-                g.cast_camera(cam, gen, &gpu_params(&p), false, budget)?
+            let (m, gpu_s, kernel_s, gc) = if set == "coherent" {
+                let (ord, gc) = thread_orders(&g, (cam, gen), &gpu_params(&p), budget)?;
+                ord.report(sname, out);
+                (gc.hits.len() as f64, ord.gpu_s[1], ord.kernel_s[1], gc)
             } else {
-                g.cast_rays(&packed, &gpu_params(&p), budget)?
+                let gc = g.cast_rays(&packed, &gpu_params(&p), budget)?;
+                (gc.hits.len() as f64, gc.gpu_s, gc.kernel_s, gc)
             };
-            let m = gc.hits.len() as f64;
             out.metric(
                 &format!("{sname}_gpu_{set}_mrays_per_s"),
-                m / gc.gpu_s.max(1e-12) / 1e6,
+                m / gpu_s.max(1e-12) / 1e6,
             );
-            if let Some(k) = gc.kernel_s {
+            if let Some(k) = kernel_s {
                 out.metric(
                     &format!("{sname}_gpu_{set}_kernel_mrays_per_s"),
                     m / k.max(1e-12) / 1e6,
