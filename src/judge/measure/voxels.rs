@@ -332,8 +332,8 @@ impl Orders {
 
 /// [`ROUNDS`] interleaved rounds of the camera cast in [`ThreadOrder::Rows`]
 /// and [`ThreadOrder::Tiles`] (which goes first alternates; `p.order` is
-/// ignored) after one warm-up cast; seconds a cast averaged over the
-/// rounds, and the last tiled cast.
+/// ignored) after [`warm_up`]; seconds a cast averaged over the rounds, and
+/// the last tiled cast.
 fn thread_orders(
     g: &GpuOctree,
     (cam, gen): (&Camera, &RayGen),
@@ -349,8 +349,7 @@ fn thread_orders(
         rays: 0.0,
     };
     let cast = |order| g.cast_camera(cam, gen, &GpuCastParams { order, ..*p }, false, budget);
-    // Warm-up: the entry's first dispatch may compile it.
-    cast(ThreadOrder::Tiles)?;
+    warm_up(|| cast(ThreadOrder::Tiles).map(drop))?;
     let mut last: [Option<GpuCast>; 2] = [None, None];
     for round in 0..ROUNDS as usize {
         for k in [round % 2, 1 - round % 2] {
@@ -374,6 +373,23 @@ fn thread_orders(
         .filter(|(a, b)| bytemuck::bytes_of(*a) != bytemuck::bytes_of(*b))
         .count() as u64;
     Ok((ord, tiles))
+}
+
+/// Wall seconds of GPU casts run before a timed one: the first dispatch of
+/// an entry may compile it, and a GPU left idle while the CPU paths ran may
+/// run its first millisecond-long casts at idle clocks (a boost clock is
+/// reached over milliseconds to tens of milliseconds).
+const WARM_S: f64 = 0.25;
+
+/// Runs `cast` at least once and until [`WARM_S`] have passed.
+fn warm_up(mut cast: impl FnMut() -> Result<()>) -> Result<()> {
+    let t = std::time::Instant::now();
+    loop {
+        cast()?;
+        if t.elapsed().as_secs_f64() >= WARM_S {
+            return Ok(());
+        }
+    }
 }
 
 /// Octree against DAG casts of the same rays in `repeats` alternating
@@ -443,8 +459,6 @@ pub fn cpu_vs_gpu(
         .collect();
     for (sname, through) in structures {
         let g = through.upload(gpu)?;
-        // Warm-up: the first dispatch of each entry compiles it.
-        g.cast_rays(&packed[..packed.len().min(64)], &gpu_params(&p_inc), budget)?;
         for (set, b, p) in [("coherent", coh, p_coh), ("incoherent", inc, p_inc)] {
             let n = b.o.len() as f64 * ROUNDS as f64;
             let mut acc = [(0.0, 0.0); CastPath::ALL.len()];
@@ -488,6 +502,7 @@ pub fn cpu_vs_gpu(
                 ord.report(sname, out);
                 (gc.hits.len() as f64, ord.gpu_s[1], ord.kernel_s[1], gc)
             } else {
+                warm_up(|| g.cast_rays(&packed, &gpu_params(&p), budget).map(drop))?;
                 let gc = g.cast_rays(&packed, &gpu_params(&p), budget)?;
                 (gc.hits.len() as f64, gc.gpu_s, gc.kernel_s, gc)
             };
