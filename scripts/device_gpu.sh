@@ -56,7 +56,27 @@ for stage in "$@"; do
             ;;
         perf:*)
             f="${stage#perf:}"
+            # The SM clock every 100 ms while the stage runs: were the GPU's
+            # millisecond-long casts timed at boost clocks?
+            nvidia-smi --query-gpu=timestamp,clocks.sm,utilization.gpu --format=csv,noheader,nounits \
+                -lms 100 >"$res/clocks_$f.csv" 2>/dev/null &
+            smi=$!
             "$hpj" perf --filter "$f" --out "$res/perf_$f" --json >"$res/perf_$f.json"
+            kill "$smi" 2>/dev/null
+            python3 - "$res/clocks_$f.csv" <<'EOF' | tee -a "$res/perf_summary.txt"
+import csv, sys
+rows = [r for r in csv.reader(open(sys.argv[1])) if len(r) >= 3]
+vals = []
+for r in rows:
+    try:
+        vals.append((float(r[1]), float(r[2])))
+    except ValueError:
+        pass
+busy = [m for m, u in vals if u > 0]
+if vals:
+    print(f"SM clock MHz, {len(vals)} samples: {min(m for m, _ in vals):.0f}-{max(m for m, _ in vals):.0f}; "
+          f"while busy ({len(busy)}): {min(busy, default=0):.0f}-{max(busy, default=0):.0f}")
+EOF
             python3 - "$res/perf_$f/perf.json" "${HP_PERF_KEYS:-.}" <<'EOF' | tee -a "$res/perf_summary.txt"
 import json, re, sys
 d = json.load(open(sys.argv[1]))
