@@ -111,6 +111,24 @@ pub fn hits_from_gpu(h: &[GpuVoxelHit]) -> VoxelHits<f32> {
     out
 }
 
+/// [`super::render::attr_image`] with the decode on the GPU
+/// (`kernels/voxel_attrs.wgsl` `decode_attrs`): the same leaf indices
+/// (`attr_index` of each hit voxel, as on the CPU), the same shading on
+/// the host, so the image equals the CPU's wherever the decode does
+/// (bit-identical on lavapipe: test in `crate::gpu::voxel_attrs`).
+pub fn attr_image_gpu(
+    ctx: &GpuContext,
+    h: &VoxelHits<f32>,
+    (attrs, form): (&Attributes, AttrForm),
+    attr_index: impl Fn([u32; 3]) -> Option<u32> + Sync,
+) -> Result<Vec<[f32; 3]>> {
+    let idx = attr_indices(h, attr_index);
+    let dec = GpuAttrs::new(ctx, attrs)?.decode(form, &idx)?;
+    Ok(shade_decoded(h, |i| {
+        (dec[i].valid == 1).then_some((dec[i].colour, dec[i].normal))
+    }))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -180,22 +198,4 @@ mod tests {
         assert_eq!(v.normal[1], [-1.0, 0.0, 0.0]);
         assert_eq!((v.capped, v.iters[1]), (1, 9));
     }
-}
-
-/// [`super::render::attr_image`] with the decode on the GPU
-/// (`kernels/voxel_attrs.wgsl` `decode_attrs`): the same leaf indices
-/// (`attr_index` of each hit voxel, as on the CPU), the same shading on
-/// the host, so the image equals the CPU's wherever the decode does
-/// (bit-identical on lavapipe: test in `crate::gpu::voxel_attrs`).
-pub fn attr_image_gpu(
-    ctx: &GpuContext,
-    h: &VoxelHits<f32>,
-    (attrs, form): (&Attributes, AttrForm),
-    attr_index: impl Fn([u32; 3]) -> Option<u32> + Sync,
-) -> Result<Vec<[f32; 3]>> {
-    let idx = attr_indices(h, attr_index);
-    let dec = GpuAttrs::new(ctx, attrs)?.decode(form, &idx)?;
-    Ok(shade_decoded(h, |i| {
-        (dec[i].valid == 1).then_some((dec[i].colour, dec[i].normal))
-    }))
 }
