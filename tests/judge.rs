@@ -9,7 +9,7 @@ use std::process::{Command, Output};
 
 use common::{exe, hpjudge, run_cmd, run_out, text};
 
-fn tmp(name: &str) -> PathBuf {
+fn tmp(name: &str) -> common::TmpDir {
     common::tmp_in("it", name)
 }
 
@@ -644,15 +644,12 @@ fn deeply_nested_yaml_is_refused_in_under_a_second() {
 
 #[test]
 fn absurd_thread_counts_are_refused() {
-    let mut c = run_cmd(
-        "TESTS/selftest/manifest.yaml",
-        &tmp("threads"),
-        &["--threads", "100000"],
-    )
-    .stdout(std::process::Stdio::piped())
-    .stderr(std::process::Stdio::piped())
-    .spawn()
-    .unwrap();
+    let d = tmp("threads");
+    let mut c = run_cmd("TESTS/selftest/manifest.yaml", &d, &["--threads", "100000"])
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
     let s = wait_for(&mut c, 10.0).expect("still running after 10 s");
     let o = c.wait_with_output().unwrap();
     assert_eq!(s.code(), Some(2), "{}", text(&o));
@@ -780,11 +777,12 @@ fn compare_counts_a_renamed_or_errored_scenario_as_a_regression() {
 
 /// `hpjudge render SCENE args...` with a fresh out dir.
 fn render(scene: &str, args: &[&str]) -> Output {
+    let out = tmp("render");
     hpjudge()
         .args(["render", scene])
         .args(args)
         .arg("--out")
-        .arg(tmp("render"))
+        .arg(&out)
         .output()
         .unwrap()
 }
@@ -792,11 +790,12 @@ fn render(scene: &str, args: &[&str]) -> Output {
 /// `hpjudge render SCENE args...`, failing the test when it is still
 /// rendering after 10 s (killed then).
 fn render_within_10_s(scene: &str, args: &[&str]) -> Output {
+    let out = tmp("render10");
     let mut c = hpjudge()
         .args(["render", scene])
         .args(args)
         .arg("--out")
-        .arg(tmp("render10"))
+        .arg(&out)
         .stdout(std::process::Stdio::piped())
         .stderr(std::process::Stdio::piped())
         .spawn()
@@ -811,7 +810,8 @@ fn render_within_10_s(scene: &str, args: &[&str]) -> Output {
 fn path_tracer_refuses_f64_rays_grad_from_and_absurd_spp_before_work() {
     let cornell = "TESTS/scenes/cornell_box.yaml";
     let small = ["--set", "width=8", "--set", "height=8", "--set", "spp=1"];
-    let npy = tmp("refuse").join("w.npy");
+    let dir = tmp("refuse");
+    let npy = dir.join("w.npy");
     std::fs::write(&npy, b"not read").unwrap();
     let npy = npy.to_str().unwrap();
     for (args, expect) in [
@@ -909,7 +909,8 @@ fn absurd_steps_depths_and_samples_are_refused_by_render_and_check_before_work()
 /// unknown flags (exit 2).
 #[test]
 fn dash_case_ids_run_filter_and_repro_into_their_own_out_folder() {
-    let d = tmp("dash").join("my dir");
+    let top = tmp("dash");
+    let d = top.join("my dir");
     std::fs::create_dir_all(&d).unwrap();
     let body = "cases:\n  - id: -rf\n    op: selftest.nan_image\n    assert:\n      - no_nan_inf: {}\n  - id: --help\n    op: selftest.good\n    assert:\n      - no_nan_inf: {}\n";
     let m = manifest(&d, body);

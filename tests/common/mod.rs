@@ -22,12 +22,48 @@ pub fn hpjudge() -> Command {
     c
 }
 
-/// An empty folder `hpjudge-<suite>-<pid>-<name>` under the temp folder.
-pub fn tmp_in(suite: &str, name: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("hpjudge-{suite}-{}-{name}", std::process::id()));
+/// A test's temp folder: removed when the test passes, kept (and named
+/// in the failure's output by the test's own messages) when it panics.
+pub struct TmpDir(PathBuf);
+
+impl std::ops::Deref for TmpDir {
+    type Target = Path;
+    fn deref(&self) -> &Path {
+        &self.0
+    }
+}
+
+impl AsRef<Path> for TmpDir {
+    fn as_ref(&self) -> &Path {
+        &self.0
+    }
+}
+
+impl AsRef<OsStr> for TmpDir {
+    fn as_ref(&self) -> &OsStr {
+        self.0.as_os_str()
+    }
+}
+
+impl Drop for TmpDir {
+    fn drop(&mut self) {
+        if !std::thread::panicking() {
+            let _ = std::fs::remove_dir_all(&self.0);
+        }
+    }
+}
+
+/// An empty folder `hpjudge-<suite>-<pid>-<name>-<k>` under the temp
+/// folder, `k` counting the calls (tests run in parallel threads, and some
+/// helpers ask for the same name).
+pub fn tmp_in(suite: &str, name: &str) -> TmpDir {
+    static CALLS: std::sync::atomic::AtomicUsize = std::sync::atomic::AtomicUsize::new(0);
+    let k = CALLS.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+    let pid = std::process::id();
+    let d = std::env::temp_dir().join(format!("hpjudge-{suite}-{pid}-{name}-{k}"));
     let _ = std::fs::remove_dir_all(&d);
     std::fs::create_dir_all(&d).unwrap();
-    d
+    TmpDir(d)
 }
 
 /// stdout then stderr.
