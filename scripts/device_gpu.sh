@@ -20,8 +20,10 @@
 # Device time is short (15 minutes a task as of 2026-11-29, start-up
 # included; a command at most 10 minutes) and the whole suite took 523 s on
 # the H100: run `suite` alone or not at all. The GPU items issue 15 still
-# has open (docs/PERF.md, eighth session) fit one call:
-#   info perf:voxels_gpu_menger_d10_1080p cases:voxel_gpu cases:vol_tiny cases:gpu_vol_hash
+# has open (docs/PERF.md, eighth session) fit one call; the two perf stages
+# also give the tiled thread order's gain over rows on the GPU
+# (`*_gpu_coherent_tiles_over_rows`; twenty-first session):
+#   info perf:voxels_gpu_menger_d10_1080p perf:voxels_gpu_sphere_d10 cases:voxel_gpu cases:vol_tiny cases:gpu_vol_hash
 # Perf and info output lands in $OUT/results.tar.gz; the log is $OUT/log.txt; the last
 # lines printed are a summary (suite verdicts, perf metrics named by
 # HP_PERF_KEYS, a regex; default every metric).
