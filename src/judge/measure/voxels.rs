@@ -497,15 +497,16 @@ pub fn cpu_vs_gpu(
                 &format!("{sname}_{set}_mean_iters"),
                 mean(res[0].iters.iter().map(|&i| i as f64)),
             );
-            let (m, gpu_s, kernel_s, gc) = if set == "coherent" {
+            let (gpu_s, kernel_s, gc) = if set == "coherent" {
                 let (ord, gc) = thread_orders(&g, (cam, gen), &gpu_params(&p), budget)?;
                 ord.report(sname, out);
-                (gc.hits.len() as f64, ord.gpu_s[1], ord.kernel_s[1], gc)
+                (ord.gpu_s[1], ord.kernel_s[1], gc)
             } else {
                 warm_up(|| g.cast_rays(&packed, &gpu_params(&p), budget).map(drop))?;
                 let gc = g.cast_rays(&packed, &gpu_params(&p), budget)?;
-                (gc.hits.len() as f64, gc.gpu_s, gc.kernel_s, gc)
+                (gc.gpu_s, gc.kernel_s, gc)
             };
+            let m = gc.hits.len() as f64;
             out.metric(
                 &format!("{sname}_gpu_{set}_mrays_per_s"),
                 m / gpu_s.max(1e-12) / 1e6,
