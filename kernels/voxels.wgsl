@@ -7,7 +7,8 @@
 // The two override constants pick the policy per pipeline, as the CPU's
 // generic `A: Addressing` does per instance: one loop, two addressing policies.
 // Entry `cast_camera` also runs common.wgsl `camera_ray` (CPU twin
-// src/rays.rs `f_ray`), entry `cast_rays` reads given rays.
+// src/rays.rs `f_ray`), from the beam starts of voxel_beam.wgsl where the
+// host ran it; entry `cast_rays` reads given rays.
 // Parity cases: TESTS/voxels/manifest_gpu.yaml `voxel_gpu_*_parity` (GPU vs
 // CPU f32 on the same rays: identical leaf except referee-flagged near ties;
 // `voxel_gpu_dag_*` for the DAG, `voxel_gpu_*_contour_*` for contours)
@@ -56,8 +57,17 @@ struct VoxParams {
     write_rays: u32,
     // cast_camera: which ray a thread casts (common.wgsl `thread_ray`).
     order: u32,
-    _pad1: u32,
+    // cast_camera: 1 = each ray starts at its 8x8 tile's `beam` entry.
+    beam: u32,
     _pad2: u32,
+}
+
+// One 8x8 pixel tile's beam start (voxel_beam.wgsl `beam_nears`): meets 0
+// when no non-empty node box meets the tile's cone (every ray a miss, not
+// cast), else every ray of the tile is cast from `near`.
+struct BeamTile {
+    near: f32,
+    meets: u32,
 }
 
 // One ray's result (32 bytes). flags: bit 0 hit, bit 1 capped, bit 2 solid
@@ -84,6 +94,8 @@ struct VoxHit {
 // Contour per attribute index (0: none) and the decode table; CONTOURS = 1 only.
 @group(0) @binding(6) var<storage, read> contours: array<u32>;
 @group(0) @binding(7) var<storage, read> contour_lut: array<f32>;
+// The beam starts of cast_camera's tiles (V.beam = 1 only).
+@group(0) @binding(8) var<storage, read> beam: array<BeamTile>;
 
 fn exp2i(k: i32) -> f32 {
     return bitcast<f32>(u32(k + 127) << 23u);
@@ -154,8 +166,8 @@ fn miss(iters: u32, loads: u32, capped: bool) -> VoxHit {
     return h;
 }
 
-// The cast of ray o + t d, t in [V.near, V.far]. CPU twin: src/voxels/cast.rs `cast`.
-fn esvo_cast(o: vec3<f32>, d: vec3<f32>) -> VoxHit {
+// The cast of ray o + t d, t in [near, V.far]. CPU twin: src/voxels/cast.rs `cast`.
+fn esvo_cast(o: vec3<f32>, d: vec3<f32>, near: f32) -> VoxHit {
     let eps = exp2i(-23);
     var dir = d * 0.5;
     let orig = o * 0.5 + 1.5;
@@ -170,7 +182,7 @@ fn esvo_cast(o: vec3<f32>, d: vec3<f32>) -> VoxHit {
     var t_min = max3(2.0 * coef - bias);
     var t_max = min3(coef - bias);
     var h = t_max;
-    t_min = max(t_min, V.near);
+    t_min = max(t_min, near);
     t_max = min(t_max, V.far);
     if (t_min > t_max) {
         return miss(0u, 0u, false);
@@ -340,7 +352,7 @@ fn esvo_cast(o: vec3<f32>, d: vec3<f32>) -> VoxHit {
             face = lo_oct[a];
         }
         let x = 2.0 * face - 3.0;
-        t = max((x - o[a]) / d[a], V.near);
+        t = max((x - o[a]) / d[a], near);
     }
     if (has_contour) {
         t = t_contour;
@@ -377,7 +389,10 @@ fn esvo_cast(o: vec3<f32>, d: vec3<f32>) -> VoxHit {
 
 // Camera rays generated here (common.wgsl `camera_ray`, region order), then cast;
 // thread t casts ray `thread_ray(V.order, t, ..)` and writes it at its region index.
-// CPU twin: src/voxels/cast.rs `cast` on src/rays.rs `f_ray::<f32>` rays.
+// With V.beam = 1 a ray starts at its tile's beam start (voxel_beam.wgsl),
+// and the rays of a tile that meets nothing are misses without a cast.
+// CPU twin: src/voxels/cast.rs `cast` on src/rays.rs `f_ray::<f32>` rays
+// (with the beam: src/voxels/beam.rs `cast_all_beam`).
 @compute @workgroup_size(64)
 fn cast_camera(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
     let i = thread_ray(V.order, linear_id(gid, nwg, 64u), C.roi_w, V.n);
@@ -385,7 +400,19 @@ fn cast_camera(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workg
         return;
     }
     let ray = camera_ray(C, i);
-    out_hits[i] = esvo_cast(ray.o, ray.d);
+    var near = V.near;
+    var meets = 1u;
+    if (V.beam == 1u) {
+        let w = C.roi_w;
+        let b = beam[(i / w / 8u) * ((w + 7u) / 8u) + (i % w) / 8u];
+        near = b.near;
+        meets = b.meets;
+    }
+    if (meets == 1u) {
+        out_hits[i] = esvo_cast(ray.o, ray.d, near);
+    } else {
+        out_hits[i] = miss(0u, 0u, false);
+    }
     if (V.write_rays == 1u) {
         out_rays[6u * i] = ray.o.x;
         out_rays[6u * i + 1u] = ray.o.y;
@@ -407,5 +434,5 @@ fn cast_rays(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgro
     let b = 6u * i;
     let o = vec3<f32>(in_rays[b], in_rays[b + 1u], in_rays[b + 2u]);
     let d = vec3<f32>(in_rays[b + 3u], in_rays[b + 4u], in_rays[b + 5u]);
-    out_hits[i] = esvo_cast(o, d);
+    out_hits[i] = esvo_cast(o, d, V.near);
 }

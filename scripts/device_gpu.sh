@@ -22,7 +22,9 @@
 # the H100: run `suite` alone or not at all. The GPU items issue 15 still
 # has open (docs/PERF.md, eighth session) fit one call; the two perf stages
 # also give the tiled thread order's gain over rows on the GPU
-# (`*_gpu_coherent_tiles_over_rows`; twenty-first session):
+# (`*_gpu_coherent_tiles_over_rows`; twenty-first session) and the beam
+# pre-pass's over casts from `near` (`*_gpu_coherent_beam_over_plain`,
+# `*_gpu_coherent_beam_ran` 1 where the adapter has f64; twenty-second):
 #   info perf:voxels_gpu_menger_d10_1080p perf:voxels_gpu_sphere_d10 cases:voxel_gpu cases:vol_tiny cases:gpu_vol_hash
 # Perf and info output lands in $OUT/results.tar.gz; the log is $OUT/log.txt; the last
 # lines printed are a summary (suite verdicts, perf metrics named by

@@ -512,6 +512,9 @@ fn cmd_info(a: &InfoArgs) -> anyhow::Result<Outcome> {
             a.name, a.backend, a.device_type, a.driver, a.driver_info
         );
     }
+    if let Some(f) = gpu["shader_f64"].as_bool() {
+        println!("gpu f64:  {f} (the voxel beam pre-pass needs it)");
+    }
     if let Some(e) = gpu["error"].as_str() {
         println!("gpu error: {e}");
     }

@@ -108,16 +108,22 @@ pub fn adapters() -> Vec<AdapterSummary> {
 
 /// The GPU block of `hpjudge info --json` and of the scoreboard's
 /// environment: every adapter of the pinned backends, the one the GPU cases
-/// use (`selected`, null when none) and why none could be used (`error`).
+/// use (`selected`, null when none), whether its kernels may use `f64`
+/// (`shader_f64`) and why none could be used (`error`).
 pub fn describe() -> serde_json::Value {
-    let (selected, error) = match GpuContext::get() {
-        Ok(c) => (serde_json::to_value(c.summary()).ok(), None),
-        Err(e) => (None, Some(e.to_string())),
+    let (selected, f64s, error) = match GpuContext::get() {
+        Ok(c) => (
+            serde_json::to_value(c.summary()).ok(),
+            Some(c.has_f64()),
+            None,
+        ),
+        Err(e) => (None, None, Some(e.to_string())),
     };
     serde_json::json!({
         "backends": std::env::var("WGPU_BACKEND").unwrap_or_else(|_| "vulkan,metal,dx12".into()),
         "adapters": adapters(),
         "selected": selected,
+        "shader_f64": f64s,
         "error": error,
     })
 }
@@ -197,8 +203,10 @@ impl GpuContext {
             })?;
         let info = adapter.get_info();
         let limits = adapter.limits();
-        let features =
-            adapter.features() & (wgpu::Features::PIPELINE_CACHE | wgpu::Features::TIMESTAMP_QUERY);
+        let features = adapter.features()
+            & (wgpu::Features::PIPELINE_CACHE
+                | wgpu::Features::TIMESTAMP_QUERY
+                | wgpu::Features::SHADER_F64);
         let desc = wgpu::DeviceDescriptor {
             label: Some("hotpath"),
             required_features: features,
@@ -242,6 +250,12 @@ impl GpuContext {
         self.device
             .features()
             .contains(wgpu::Features::TIMESTAMP_QUERY)
+    }
+
+    /// Whether kernels may use `f64` (the adapter has `SHADER_F64`; the
+    /// voxel beam pre-pass, `kernels/voxel_beam.wgsl`, needs it).
+    pub fn has_f64(&self) -> bool {
+        self.device.features().contains(wgpu::Features::SHADER_F64)
     }
 
     /// The pipeline cache, where the adapter supports one.

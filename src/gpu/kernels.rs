@@ -18,12 +18,14 @@ use crate::error::{Error, Result};
 pub const COMMON: &str = include_str!("../../kernels/common.wgsl");
 
 /// One kernel file: its name (file stem), its own text (without common),
-/// and the kernel it extends (prepended after common), if any.
+/// the kernel it extends (prepended after common), if any, and whether it
+/// uses `f64` (built only where the adapter has `SHADER_F64`).
 #[derive(Clone, Copy, Debug)]
 pub struct Kernel {
     pub name: &'static str,
     pub text: &'static str,
     pub base: Option<&'static str>,
+    pub f64: bool,
 }
 
 macro_rules! kernel {
@@ -32,12 +34,19 @@ macro_rules! kernel {
             name: $name,
             text: include_str!(concat!("../../kernels/", $name, ".wgsl")),
             base: None,
+            f64: false,
         }
     };
     ($name:literal extends $base:literal) => {
         Kernel {
             base: Some($base),
             ..kernel!($name)
+        }
+    };
+    ($name:literal extends $base:literal with f64) => {
+        Kernel {
+            f64: true,
+            ..kernel!($name extends $base)
         }
     };
 }
@@ -51,6 +60,7 @@ pub const KERNELS: &[Kernel] = &[
     kernel!("hash_mlp" extends "volume"),
     kernel!("volume_diff" extends "hash_mlp"),
     kernel!("voxels"),
+    kernel!("voxel_beam" extends "voxels" with f64),
     kernel!("voxel_attrs"),
     kernel!("transport"),
     kernel!("pathtrace"),
@@ -121,6 +131,11 @@ pub fn pipeline_with(
     if let Some(p) = table.get(&key) {
         return Ok(p.clone());
     }
+    if find(name)?.f64 && !ctx.has_f64() {
+        return Err(Error::NotSupported(format!(
+            "kernels/{name}.wgsl uses f64: the adapter has no SHADER_F64"
+        )));
+    }
     let src = source(name)?;
     let scope = ctx.device.push_error_scope(wgpu::ErrorFilter::Validation);
     let module = ctx
@@ -157,14 +172,14 @@ mod tests {
     use super::*;
 
     /// Parses and validates `src` with naga (all capabilities wgpu may
-    /// grant are not assumed: the default set, what every adapter has).
-    fn validate(name: &str, src: &str) {
+    /// grant are not assumed: the default set, what every adapter has, and
+    /// `FLOAT64` for a kernel marked `f64`).
+    fn validate(name: &str, src: &str, f64: bool) {
         let module = naga::front::wgsl::parse_str(src)
             .unwrap_or_else(|e| panic!("{name}: {}", e.emit_to_string(src)));
-        let mut v = naga::valid::Validator::new(
-            naga::valid::ValidationFlags::all(),
-            naga::valid::Capabilities::default(),
-        );
+        let mut caps = naga::valid::Capabilities::default();
+        caps.set(naga::valid::Capabilities::FLOAT64, f64);
+        let mut v = naga::valid::Validator::new(naga::valid::ValidationFlags::all(), caps);
         if let Err(e) = v.validate(&module) {
             panic!("{name}: {}", e.emit_to_string(src));
         }
@@ -184,7 +199,7 @@ mod tests {
                 .strip_suffix(".wgsl")
                 .unwrap_or_else(|| panic!("kernels/{f} is not a .wgsl file"));
             if stem == "common" {
-                validate("common.wgsl", COMMON);
+                validate("common.wgsl", COMMON, false);
                 continue;
             }
             let k = KERNELS.iter().find(|k| k.name == stem);
@@ -197,7 +212,7 @@ mod tests {
                 k.unwrap().text,
                 std::fs::read_to_string(dir.join(f)).unwrap()
             );
-            validate(f, &source(stem).unwrap());
+            validate(f, &source(stem).unwrap(), k.unwrap().f64);
         }
         assert_eq!(
             files.len(),

@@ -2,8 +2,10 @@
 //! [`GpuOctree`] holds one scene's nodes (octree or DAG, with contours when
 //! asked), uploaded once, and casts batches of camera rays (generated on the
 //! GPU by common.wgsl `camera_ray`, entry `cast_camera`) or given rays
-//! (entry `cast_rays`). CPU twins: `src/voxels/cast.rs` `cast`, `cast_dag`,
-//! `cast_contours` (f32); parity cases `voxel_gpu_*` in
+//! (entry `cast_rays`), camera rays from the beam starts of
+//! `kernels/voxel_beam.wgsl` where the adapter has f64. CPU twins:
+//! `src/voxels/cast.rs` `cast`, `cast_dag`, `cast_contours` (f32),
+//! `src/voxels/beam.rs` `beam_nears`; parity cases `voxel_gpu_*` in
 //! `TESTS/voxels/manifest_gpu.yaml`. Inputs are plain node words and f32
 //! parameters: nothing here imports the voxel renderer.
 
@@ -34,7 +36,8 @@ pub struct VoxParams {
     pub n: u32,
     pub write_rays: u32,
     pub order: u32,
-    pub _pad: [u32; 2],
+    pub beam: u32,
+    pub _pad: u32,
 }
 const _: () = assert!(std::mem::size_of::<VoxParams>() == 48);
 
@@ -90,18 +93,34 @@ pub struct GpuCastParams {
     pub max_iter: u32,
     /// Which camera ray a thread casts (`cast_camera` only).
     pub order: ThreadOrder,
+    /// Camera rays start at their 8x8 tile's beam start (`cast_camera`
+    /// only; run where the adapter has f64 and there is no LOD cut, see
+    /// [`GpuOctree::beam_runs`]).
+    pub beam: bool,
+}
+
+/// One 8x8 pixel tile's beam start (`struct BeamTile` of the kernels):
+/// `meets` 0 when no non-empty node box meets the tile's cone (its rays are
+/// misses), else its rays are cast from `near`.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
+pub struct GpuBeamTile {
+    pub near: f32,
+    pub meets: u32,
 }
 
 /// What a batch returned: per-ray results, the camera rays when asked for
 /// (`[ox, oy, oz, dx, dy, dz]` per ray), the GPU seconds (submit to
 /// readback), the kernels' seconds on the GPU clock (where the adapter has
-/// timestamps) and the iteration cap the kernel ran with.
+/// timestamps; the beam pre-pass included), the iteration cap the kernel
+/// ran with, and whether the rays started at beam starts.
 pub struct GpuCast {
     pub hits: Vec<GpuVoxelHit>,
     pub rays: Vec<[f32; 6]>,
     pub gpu_s: f64,
     pub kernel_s: Option<f64>,
     pub max_iter: u32,
+    pub beam: bool,
 }
 
 /// How the kernel finds a node's children (its `ADDRESSING` override
@@ -127,7 +146,8 @@ pub struct GpuContours<'a> {
 pub const CONTOUR_LUT_LEN: usize = 3 * (1 << 18) + 2 * 128;
 
 /// One scene's octree (or DAG) on the GPU: the node and contour buffers
-/// (uploaded once) and the two pipelines of `kernels/voxels.wgsl`,
+/// (uploaded once), the two pipelines of `kernels/voxels.wgsl` and the beam
+/// pre-pass of `kernels/voxel_beam.wgsl` (where the adapter has f64),
 /// specialised for the addressing and contours.
 pub struct GpuOctree<'c> {
     ctx: &'c GpuContext,
@@ -137,6 +157,16 @@ pub struct GpuOctree<'c> {
     depth: u32,
     camera: wgpu::ComputePipeline,
     given: wgpu::ComputePipeline,
+    beam: Option<wgpu::ComputePipeline>,
+}
+
+/// Pixels per side of a beam tile (`BEAM_TILE` of the kernels; the CPU's
+/// `voxels::beam::TILE`).
+pub const BEAM_TILE: u32 = 8;
+
+/// Beam tiles of a `w` x `h` region.
+fn beam_tile_count(w: u32, h: u32) -> u64 {
+    w.div_ceil(BEAM_TILE) as u64 * h.div_ceil(BEAM_TILE) as u64
 }
 
 /// Rays per dispatch: bounded so one batch's results fit a binding.
@@ -193,7 +223,18 @@ impl<'c> GpuOctree<'c> {
             depth,
             camera: pipeline_with(ctx, "voxels", "cast_camera", &k)?,
             given: pipeline_with(ctx, "voxels", "cast_rays", &k)?,
+            beam: if ctx.has_f64() {
+                Some(pipeline_with(ctx, "voxel_beam", "beam_nears", &k[..1])?)
+            } else {
+                None
+            },
         })
+    }
+
+    /// Whether a camera cast with `p` starts from beam starts: asked for,
+    /// the adapter has f64, and no LOD cut (whose stop need not be solid).
+    pub fn beam_runs(&self, p: &GpuCastParams) -> bool {
+        p.beam && self.beam.is_some() && p.lod.is_none()
     }
 
     /// The iteration cap the kernel runs with: `max_iter`, clamped below
@@ -230,7 +271,8 @@ impl<'c> GpuOctree<'c> {
             n,
             write_rays: write_rays as u32,
             order: p.order as u32,
-            _pad: [0; 2],
+            beam: 0,
+            _pad: 0,
         })
     }
 
@@ -259,32 +301,55 @@ impl<'c> GpuOctree<'c> {
             "gpu voxel cast results",
             bytes_for(n, 2 * (32 + if keep_rays { 24 } else { 0 })),
         )?;
-        let vp = self.params(p, n as u32, keep_rays)?;
+        let beam = self.beam_runs(p);
+        let vp = VoxParams {
+            beam: beam as u32,
+            ..self.params(p, n as u32, keep_rays)?
+        };
         let cu = uniform(self.ctx, "voxel camera", &RayParams::new(cam, gen));
         let vu = uniform(self.ctx, "voxel params", &vp);
         let hits = storage_out(self.ctx, "voxel hits", n * 32)?;
         let rays = storage_out(self.ctx, "voxel rays", if keep_rays { n * 24 } else { 0 })?;
-        let pass = Pass {
+        let n_tiles = if beam {
+            beam_tile_count(roi.width, roi.height)
+        } else {
+            1
+        };
+        let tiles = storage_out(self.ctx, "voxel beam tiles", n_tiles * 8)?;
+        let beam_buffers = [(0, &cu), (1, &vu), (2, &self.nodes), (9, &tiles)];
+        let cast_buffers = [
+            (0, &cu),
+            (1, &vu),
+            (2, &self.nodes),
+            (4, &hits),
+            (5, &rays),
+            (6, &self.contours),
+            (7, &self.lut),
+            (8, &tiles),
+        ];
+        let mut passes = Vec::with_capacity(2);
+        if let (true, Some(bp)) = (beam, &self.beam) {
+            passes.push(Pass {
+                label: "beam_nears",
+                pipeline: bp,
+                buffers: &beam_buffers,
+                n: n_tiles,
+                wg: 64,
+            });
+        }
+        passes.push(Pass {
             label: "cast_camera",
             pipeline: &self.camera,
-            buffers: &[
-                (0, &cu),
-                (1, &vu),
-                (2, &self.nodes),
-                (4, &hits),
-                (5, &rays),
-                (6, &self.contours),
-                (7, &self.lut),
-            ],
+            buffers: &cast_buffers,
             n: thread_count(p.order, roi.width, roi.height),
             wg: 64,
-        };
+        });
         let read: Vec<&wgpu::Buffer> = if keep_rays {
             vec![&hits, &rays]
         } else {
             vec![&hits]
         };
-        let rb = run_timed(self.ctx, "cast_camera", &[pass], &read)?;
+        let rb = run_timed(self.ctx, "cast_camera", &passes, &read)?;
         let n = n as usize;
         let rays = if keep_rays {
             rb.take::<[f32; 6]>(1, n)?
@@ -297,7 +362,40 @@ impl<'c> GpuOctree<'c> {
             gpu_s: rb.gpu_s,
             kernel_s: rb.kernel_s,
             max_iter: vp.max_iter,
+            beam,
         })
+    }
+
+    /// The beam pre-pass alone (`kernels/voxel_beam.wgsl` `beam_nears`):
+    /// one [`GpuBeamTile`] per 8x8 tile of `gen`'s region, row by row; an
+    /// error where the adapter has no f64.
+    pub fn beam_tiles(
+        &self,
+        cam: &Camera,
+        gen: &RayGen,
+        p: &GpuCastParams,
+    ) -> Result<Vec<GpuBeamTile>> {
+        gen.validate()?;
+        cam.validate()?;
+        let Some(bp) = &self.beam else {
+            return Err(Error::NotSupported(
+                "gpu voxel beam: the adapter has no SHADER_F64".into(),
+            ));
+        };
+        let roi = gen.region();
+        let n = roi.width as u64 * roi.height as u64;
+        let n_tiles = beam_tile_count(roi.width, roi.height);
+        let vu = uniform(self.ctx, "voxel params", &self.params(p, n as u32, false)?);
+        let cu = uniform(self.ctx, "voxel camera", &RayParams::new(cam, gen));
+        let tiles = storage_out(self.ctx, "voxel beam tiles", n_tiles * 8)?;
+        let pass = Pass {
+            label: "beam_nears",
+            pipeline: bp,
+            buffers: &[(0, &cu), (1, &vu), (2, &self.nodes), (9, &tiles)],
+            n: n_tiles,
+            wg: 64,
+        };
+        run_timed(self.ctx, "beam_nears", &[pass], &[&tiles])?.take(0, n_tiles as usize)
     }
 
     /// Casts given rays `[ox, oy, oz, dx, dy, dz]`, in batches that fit a binding.
@@ -315,6 +413,7 @@ impl<'c> GpuOctree<'c> {
             gpu_s: 0.0,
             kernel_s: Some(0.0),
             max_iter: self.kernel_max_iter(p.max_iter),
+            beam: false,
         };
         for chunk in rays.chunks(batch_rays(self.ctx) as usize) {
             let m = chunk.len() as u64;

@@ -47,6 +47,14 @@ pub const MARGIN: f64 = 1e-5;
 /// Cones wider than this (radians) are not walked: the bound would be poor.
 pub const MAX_HALF_ANGLE: f64 = 0.5;
 
+/// `cos(MAX_HALF_ANGLE)`: a cone is walked when its half-angle's cosine is
+/// at least this (kernels/voxel_beam.wgsl holds the same constant).
+pub const COS_MAX_HALF_ANGLE: f64 = 0.8775825618903728;
+
+/// Radians each cone's half-angle is widened by, for the rounding of its
+/// cosine (kernels/voxel_beam.wgsl holds the same constant).
+pub const WIDEN: f64 = 1e-9;
+
 /// A cone from `o` about the unit `axis` with half-angle `half`; boxes are
 /// grown by `slack` (world units) when tested against it. `time_error`
 /// bounds the cast's plane-time rounding ([`plane_time_error`]) on every
@@ -133,19 +141,25 @@ impl<F: CastReal> ConeAcc<F> {
         if !self.ok || self.len2_max == 0.0 {
             return None;
         }
-        let half = self.cos2_min.clamp(0.0, 1.0).sqrt().acos() + 1e-9;
+        // The half-angle widened by `WIDEN` radians, as cosine and sine
+        // (no trigonometric function: the GPU twin has none in f64):
+        // cos(h + w) = c cos w - s sin w, sin(h + w) = s cos w + c sin w,
+        // with cos w = 1 and sin w = w in f64 at w = 1e-9.
+        let c2 = self.cos2_min.clamp(0.0, 1.0);
+        let (c, s) = (c2.sqrt(), (1.0 - c2).sqrt());
+        let (cos_half, sin_half) = (c - s * WIDEN, s + c * WIDEN);
         let time_error = plane_time_error(self.o, self.dmin.map(F::of));
         let len_max = self.len2_max.sqrt();
-        (half <= MAX_HALF_ANGLE).then(|| Cone {
+        (cos_half >= COS_MAX_HALF_ANGLE).then(|| Cone {
             o: self.o.map(|x| x.f64()),
             axis: self.axis,
-            half,
+            half: sin_half.atan2(cos_half),
             slack: 2.0 * time_error * len_max,
             time_error,
             len_max,
-            cos2_half: half.cos() * half.cos(),
-            sin_half: half.sin(),
-            tan_half: half.tan(),
+            cos2_half: cos_half * cos_half,
+            sin_half,
+            tan_half: sin_half / cos_half,
         })
     }
 }

@@ -80,7 +80,8 @@ pub fn cast_batch(
 /// `p` in the kernel's f32: near and far as `F::of` rounds them (far
 /// clamped to `f32::MAX`, a bound no ray reaches in the unit box), the LOD
 /// footprint halved after rounding, as the CPU cast does; camera rays in
-/// [`ThreadOrder::Tiles`].
+/// [`ThreadOrder::Tiles`] from beam starts (as the CPU's beam path,
+/// [`super::beam`]; where the adapter runs it).
 pub fn gpu_params(p: &CastParams) -> GpuCastParams {
     GpuCastParams {
         near: p.near as f32,
@@ -90,6 +91,7 @@ pub fn gpu_params(p: &CastParams) -> GpuCastParams {
             .map(|l| (l.orig_size as f32 * 0.5, l.dir_size as f32 * 0.5)),
         max_iter: p.max_iter,
         order: ThreadOrder::Tiles,
+        beam: true,
     }
 }
 
@@ -132,7 +134,128 @@ pub fn attr_image_gpu(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::voxels::cast::Lod;
+    use crate::gpu::voxels::GpuAddressing;
+    use crate::voxels::beam::{beam_nears, TILE};
+    use crate::voxels::cast::{Absolute, Lod, Relative};
+    use crate::voxels::dag::build_dag;
+    use crate::voxels::octree::{build, Octree};
+    use crate::voxels::shape::Shape;
+    use crate::voxels::tiles::Tiling;
+
+    /// The GPU context where kernels may use f64 (a note on stderr and
+    /// `None` otherwise: the test is skipped).
+    fn f64_gpu() -> Option<&'static GpuContext> {
+        let Ok(ctx) = GpuContext::get() else {
+            eprintln!("no GPU adapter: skipped");
+            return None;
+        };
+        ctx.has_f64().then_some(ctx).or_else(|| {
+            eprintln!("no SHADER_F64: skipped");
+            None
+        })
+    }
+
+    const SPONGE_DEPTH: u32 = 8;
+
+    /// A level-5 Menger sponge at depth [`SPONGE_DEPTH`].
+    fn sponge(budget: &MemBudget) -> Octree {
+        build(&Shape::Menger { level: 5 }, SPONGE_DEPTH, budget).unwrap()
+    }
+
+    /// A 123 x 77 view of a Menger sponge (partial tiles at the right and
+    /// bottom), its f32 camera rays and their cast parameters.
+    fn sponge_view(budget: &MemBudget) -> (Camera, RayGen, Batch<f32>, CastParams) {
+        let (w, h) = (123, 77);
+        let cam = Camera::pinhole_look_at([2.0, 1.5, 2.5], [0.0; 3], [0.0, 1.0, 0.0], 45.0, w, h)
+            .unwrap();
+        let gen = RayGen::new(w, h);
+        let b = Batch::<f32>::camera(&cam, &gen, budget).unwrap();
+        let p = b.params(None, 1 << 16);
+        (cam, gen, b, p)
+    }
+
+    /// The GPU's tile starts (kernels/voxel_beam.wgsl) against the CPU's
+    /// (`beam_nears`, the f32 rays' tiles), octree and DAG: the same tiles
+    /// meet nothing, the others start at the same f32 distance (the GPU's
+    /// f64 division may round apart: within 2^-20 relative).
+    #[test]
+    fn gpu_beam_tiles_match_the_cpu_beam() {
+        let Some(ctx) = f64_gpu() else { return };
+        let budget = MemBudget::fixed(1 << 30);
+        let (depth, t) = (SPONGE_DEPTH, sponge(&budget));
+        let dag = build_dag(&t, &budget).unwrap();
+        let (cam, gen, b, p) = sponge_view(&budget);
+        let tiles = Tiling::new(&b.shape, b.o.len(), TILE);
+        let all = 0..tiles.bands();
+        let cpu = [
+            beam_nears::<f32, Relative>(&t.nodes, depth, &tiles, all.clone(), &b.o, &b.d, &p),
+            beam_nears::<f32, Absolute>(&dag.nodes, depth, &tiles, all, &b.o, &b.d, &p),
+        ];
+        let uploads = [
+            (&t.nodes, GpuAddressing::Relative),
+            (&dag.nodes, GpuAddressing::Absolute),
+        ];
+        let (w, across) = (123usize, 123usize.div_ceil(TILE));
+        for ((nodes, addressing), cpu) in uploads.into_iter().zip(cpu) {
+            let cpu = cpu.unwrap();
+            let g = GpuOctree::with(ctx, nodes, depth, addressing, None).unwrap();
+            let gpu = g.beam_tiles(&cam, &gen, &gpu_params(&p)).unwrap();
+            assert_eq!(gpu.len(), across * 77usize.div_ceil(TILE));
+            let (mut started, mut empty, mut equal) = (0, 0, 0);
+            for (k, tile) in gpu.iter().enumerate() {
+                let first = (k / across) * TILE * w + (k % across) * TILE;
+                let want = cpu[first];
+                if want == f64::INFINITY {
+                    assert_eq!(tile.meets, 0, "tile {k}");
+                    empty += 1;
+                    continue;
+                }
+                assert_eq!(tile.meets, 1, "tile {k}");
+                let want = want as f32;
+                let rel = ((tile.near - want) / want).abs();
+                assert!(
+                    rel <= 2f32.powi(-20),
+                    "tile {k}: {} against {want}",
+                    tile.near
+                );
+                started += (want > p.near as f32) as u32;
+                equal += (tile.near == want) as u32;
+            }
+            assert!(started > 40 && empty > 10, "{started} {empty}");
+            eprintln!("{addressing:?}: {equal} of {} tiles bit-equal", gpu.len());
+        }
+    }
+
+    /// Camera casts from the GPU's beam starts: hit, t, voxel and normal
+    /// of every ray equal the GPU cast from `near`, with fewer iterations;
+    /// in both thread orders (the CPU cast is the parity cases' referee).
+    #[test]
+    fn gpu_beam_casts_equal_the_casts_from_near() {
+        let Some(ctx) = f64_gpu() else { return };
+        let budget = MemBudget::fixed(1 << 30);
+        let (depth, t) = (SPONGE_DEPTH, sponge(&budget));
+        let (cam, gen, _, p) = sponge_view(&budget);
+        let g = GpuOctree::new(ctx, &t.nodes, depth).unwrap();
+        let on = gpu_params(&p);
+        let off = GpuCastParams { beam: false, ..on };
+        let plain = g.cast_camera(&cam, &gen, &off, false, &budget).unwrap();
+        assert!(!plain.beam);
+        let key = |h: &GpuVoxelHit| (h.t.to_bits(), h.voxel, h.normal, h.flags & 0xFFFF);
+        for order in [ThreadOrder::Tiles, ThreadOrder::Rows] {
+            let beam = g
+                .cast_camera(&cam, &gen, &GpuCastParams { order, ..on }, false, &budget)
+                .unwrap();
+            assert!(beam.beam);
+            let (mut it_beam, mut it_plain) = (0u64, 0u64);
+            for (i, (a, c)) in beam.hits.iter().zip(&plain.hits).enumerate() {
+                assert_eq!(key(a), key(c), "ray {i}");
+                (it_beam, it_plain) = (it_beam + a.iters as u64, it_plain + c.iters as u64);
+            }
+            // Few here: most of this view's rays enter the sponge at its
+            // faces (the bench's scene cameras: 0.69-0.96x, docs/PERF.md).
+            assert!(it_beam < it_plain, "{it_beam} {it_plain}");
+        }
+    }
 
     #[test]
     fn params_round_like_the_f32_cast_and_keep_far_finite() {

@@ -7,7 +7,7 @@ use super::timed;
 use crate::budget::{bytes_for, MemBudget};
 use crate::camera::Camera;
 use crate::error::Result;
-use crate::gpu::voxels::{GpuCast, GpuCastParams, GpuOctree};
+use crate::gpu::voxels::{GpuCast, GpuCastParams, GpuOctree, GpuVoxelHit};
 use crate::gpu::GpuContext;
 use crate::rays::thread_order::{warp_efficiency, ThreadOrder};
 use crate::rays::RayGen;
@@ -282,26 +282,44 @@ fn differing<F: Real>(a: &VoxelHits<F>, b: &VoxelHits<F>) -> u64 {
         .count() as u64
 }
 
-/// The GPU camera cast in both [`ThreadOrder`]s, per order: seconds a
-/// cast (submit to readback; the kernels' where the adapter has
-/// timestamps), the fraction of lane-iterations 32-lane warps spend on work
-/// ([`warp_efficiency`] of the kernel's own iteration counts), and the rays
-/// whose results differ between the orders (none: only the thread moves).
+/// The GPU camera cast in three variants ([`VARIANTS`]: both
+/// [`ThreadOrder`]s from beam starts, and tiles from `near`), per variant:
+/// seconds a cast (submit to readback; the kernels' where the adapter has
+/// timestamps); the fraction of lane-iterations 32-lane warps spend on work
+/// in either order ([`warp_efficiency`] of the tiled beam cast's own
+/// iteration counts); the rays whose results differ between the orders
+/// (none: only the thread moves) and between the beam and `near` starts
+/// other than in iterations and node words read (none: the beam start never
+/// passes a hit); whether the beam ran (the adapter has f64).
 struct Orders {
-    gpu_s: [f64; 2],
-    kernel_s: [Option<f64>; 2],
+    gpu_s: [f64; 3],
+    kernel_s: [Option<f64>; 3],
     warp32: [f64; 2],
     differing: u64,
+    beam_differing: u64,
+    beam_iters: f64,
+    beam_ran: bool,
     rays: f64,
 }
 
+/// The variants [`thread_orders`] casts: rows from the beam, tiles from the
+/// beam (the default), tiles from `near`.
+const VARIANTS: [(ThreadOrder, bool); 3] = [
+    (ThreadOrder::Rows, true),
+    (ThreadOrder::Tiles, true),
+    (ThreadOrder::Tiles, false),
+];
+
 impl Orders {
-    /// `{s}_gpu_coherent_rows_kernel_mrays_per_s` (`..._rows_mrays_per_s`
-    /// without timestamps; the tiled figures are the scenario's
-    /// `{s}_gpu_coherent_*`), `{s}_gpu_coherent_tiles_over_rows` (speed
-    /// ratio, kernels' clock where there is one),
-    /// `{s}_coherent_warp32_efficiency_{rows,tiles}`,
-    /// `{s}_gpu_coherent_order_differing_rays`.
+    /// `{s}_gpu_coherent_rows_kernel_mrays_per_s` and
+    /// `{s}_gpu_coherent_plain_kernel_mrays_per_s` (`..._mrays_per_s`
+    /// without timestamps; the tiled beam figures are the scenario's
+    /// `{s}_gpu_coherent_*`), `{s}_gpu_coherent_tiles_over_rows` and
+    /// `{s}_gpu_coherent_beam_over_plain` (speed ratios, kernels' clock
+    /// where there is one), `{s}_coherent_warp32_efficiency_{rows,tiles}`,
+    /// `{s}_gpu_coherent_order_differing_rays`,
+    /// `{s}_gpu_coherent_beam_differing_rays`,
+    /// `{s}_gpu_coherent_beam_mean_iters`, `{s}_gpu_coherent_beam_ran`.
     fn report(&self, s: &str, out: &mut Outputs) {
         let secs = |k: usize| self.kernel_s[k].unwrap_or(self.gpu_s[k]);
         let clock = if self.kernel_s[0].is_some() {
@@ -309,10 +327,12 @@ impl Orders {
         } else {
             ""
         };
-        out.metric(
-            &format!("{s}_gpu_coherent_rows_{clock}mrays_per_s"),
-            self.rays / secs(0).max(1e-12) / 1e6,
-        );
+        for (k, name) in [(0, "rows"), (2, "plain")] {
+            out.metric(
+                &format!("{s}_gpu_coherent_{name}_{clock}mrays_per_s"),
+                self.rays / secs(k).max(1e-12) / 1e6,
+            );
+        }
         for (k, name) in ["rows", "tiles"].into_iter().enumerate() {
             out.metric(
                 &format!("{s}_coherent_warp32_efficiency_{name}"),
@@ -324,42 +344,69 @@ impl Orders {
             secs(0) / secs(1).max(1e-12),
         );
         out.metric(
+            &format!("{s}_gpu_coherent_beam_over_plain"),
+            secs(2) / secs(1).max(1e-12),
+        );
+        out.metric(
             &format!("{s}_gpu_coherent_order_differing_rays"),
             self.differing as f64,
+        );
+        out.metric(
+            &format!("{s}_gpu_coherent_beam_differing_rays"),
+            self.beam_differing as f64,
+        );
+        out.metric(
+            &format!("{s}_gpu_coherent_beam_mean_iters"),
+            self.beam_iters,
+        );
+        out.metric(
+            &format!("{s}_gpu_coherent_beam_ran"),
+            self.beam_ran as u32 as f64,
         );
     }
 }
 
-/// [`ROUNDS`] interleaved rounds of the camera cast in [`ThreadOrder::Rows`]
-/// and [`ThreadOrder::Tiles`] (which goes first alternates; `p.order` is
-/// ignored) after [`warm_up`]; seconds a cast averaged over the rounds, and
-/// the last tiled cast.
+/// [`ROUNDS`] interleaved rounds of the camera cast in the three
+/// [`VARIANTS`] (which goes first rotates; `p.order` and `p.beam` are
+/// ignored) after [`warm_up`]; seconds a cast averaged over the rounds, the
+/// last tiled beam cast and the last cast from `near`.
 fn thread_orders(
     g: &GpuOctree,
     (cam, gen): (&Camera, &RayGen),
     p: &GpuCastParams,
     budget: &MemBudget,
-) -> Result<(Orders, GpuCast)> {
-    let orders = [ThreadOrder::Rows, ThreadOrder::Tiles];
+) -> Result<(Orders, GpuCast, GpuCast)> {
     let mut ord = Orders {
-        gpu_s: [0.0; 2],
-        kernel_s: [Some(0.0); 2],
+        gpu_s: [0.0; 3],
+        kernel_s: [Some(0.0); 3],
         warp32: [0.0; 2],
         differing: 0,
+        beam_differing: 0,
+        beam_iters: 0.0,
+        beam_ran: false,
         rays: 0.0,
     };
-    let cast = |order| g.cast_camera(cam, gen, &GpuCastParams { order, ..*p }, false, budget);
-    warm_up(|| cast(ThreadOrder::Tiles).map(drop))?;
-    let mut last: [Option<GpuCast>; 2] = [None, None];
+    let cast = |(order, beam): (ThreadOrder, bool)| {
+        let q = GpuCastParams { order, beam, ..*p };
+        g.cast_camera(cam, gen, &q, false, budget)
+    };
+    warm_up(|| {
+        for v in VARIANTS {
+            cast(v)?;
+        }
+        Ok(())
+    })?;
+    let mut last: [Option<GpuCast>; 3] = [None, None, None];
     for round in 0..ROUNDS as usize {
-        for k in [round % 2, 1 - round % 2] {
-            let c = cast(orders[k])?;
+        for j in 0..VARIANTS.len() {
+            let k = (round + j) % VARIANTS.len();
+            let c = cast(VARIANTS[k])?;
             ord.gpu_s[k] += c.gpu_s;
             ord.kernel_s[k] = ord.kernel_s[k].zip(c.kernel_s).map(|(a, b)| a + b);
             last[k] = Some(c);
         }
     }
-    let [Some(rows), Some(tiles)] = last else {
+    let [Some(rows), Some(tiles), Some(plain)] = last else {
         unreachable!("ROUNDS > 0")
     };
     let r = ROUNDS as f64;
@@ -367,12 +414,19 @@ fn thread_orders(
     ord.kernel_s = ord.kernel_s.map(|s| s.map(|s| s / r));
     let iters: Vec<u32> = tiles.hits.iter().map(|h| h.iters).collect();
     ord.rays = iters.len() as f64;
+    ord.beam_iters = mean(iters.iter().map(|&i| i as f64));
+    ord.beam_ran = tiles.beam;
     let w = gen.region().width;
-    ord.warp32 = orders.map(|order| warp_efficiency(&iters, order, w, 32));
+    ord.warp32 = [ThreadOrder::Rows, ThreadOrder::Tiles].map(|o| warp_efficiency(&iters, o, w, 32));
     ord.differing = (rows.hits.iter().zip(&tiles.hits))
         .filter(|(a, b)| bytemuck::bytes_of(*a) != bytemuck::bytes_of(*b))
         .count() as u64;
-    Ok((ord, tiles))
+    // Everything but the iterations and the node words read (flags' high half).
+    let key = |h: &GpuVoxelHit| (h.t.to_bits(), h.voxel, h.normal, h.attr, h.flags & 0xFFFF);
+    ord.beam_differing = (plain.hits.iter().zip(&tiles.hits))
+        .filter(|(a, b)| key(a) != key(b))
+        .count() as u64;
+    Ok((ord, tiles, plain))
 }
 
 /// Wall seconds of GPU casts run before a timed one: the first dispatch of
@@ -497,10 +551,12 @@ pub fn cpu_vs_gpu(
                 &format!("{sname}_{set}_mean_iters"),
                 mean(res[0].iters.iter().map(|&i| i as f64)),
             );
+            // `gc`: the cast whose node words are reported (from `near`, as
+            // the per-ray CPU cast reads them).
             let (gpu_s, kernel_s, gc) = if set == "coherent" {
-                let (ord, gc) = thread_orders(&g, (cam, gen), &gpu_params(&p), budget)?;
+                let (ord, _, plain) = thread_orders(&g, (cam, gen), &gpu_params(&p), budget)?;
                 ord.report(sname, out);
-                (ord.gpu_s[1], ord.kernel_s[1], gc)
+                (ord.gpu_s[1], ord.kernel_s[1], plain)
             } else {
                 warm_up(|| g.cast_rays(&packed, &gpu_params(&p), budget).map(drop))?;
                 let gc = g.cast_rays(&packed, &gpu_params(&p), budget)?;
