@@ -119,7 +119,9 @@ pub fn contour_error<F: CastReal>(
 /// (with the kernel's iteration cap, so a capped ray is capped on both):
 /// the GPU's hits, the CPU's as `cpu_*`, `excused` / `not_excused` (see
 /// [`CastPair::leaf_ties`]), `normal_not_excused` (also excusing normal
-/// ties, see [`CastPair::normal_ties`]), `identical_frac` (scalar and metric), counters `rays`,
+/// ties, see [`CastPair::normal_ties`]), `identical_frac` and `beam_ran`
+/// (1 when the GPU's camera rays started at its beam starts; scalars and
+/// metrics), counters `rays`,
 /// `differ`, `excused`, `unexcused`, `normal_differ`, `normal_excused`,
 /// `gpu_capped`, `cpu_capped`; with `attrs`, the images shaded from the
 /// hit leaves' attributes, decoded on the GPU (`image`) and on the CPU
@@ -172,6 +174,9 @@ pub fn gpu_parity(
     let identical = 1.0 - differ as f64 / n.max(1) as f64;
     out.metric("identical_frac", identical);
     out.tensor("identical_frac", Tensor::scalar(identical));
+    // Whether the camera rays started at the GPU's beam starts.
+    out.metric("beam_ran", g.beam as u8 as f64);
+    out.tensor("beam_ran", Tensor::scalar(g.beam as u8 as f64));
     let not_excused: Vec<u8> = excused.iter().map(|&x| 1 - x).collect();
     let normal_not_excused: Vec<u8> = (excused.iter().zip(&normal_ok))
         .map(|(&x, &y)| 1 - (x | y))

@@ -36,15 +36,20 @@ pub fn contour_lut() -> Vec<f32> {
 }
 
 /// The camera's rays cast on the GPU (generated there; read back into the
-/// returned batch when `keep_rays`), over `gen`'s `[near, far]`.
+/// returned batch when `keep_rays`), over `gen`'s `[near, far]`, from the
+/// beam starts when `beam` (where the adapter runs them).
 pub fn cast_camera(
     g: &GpuOctree,
     (cam, gen): (&Camera, &RayGen),
-    p: &CastParams,
+    (p, beam): (&CastParams, bool),
     keep_rays: bool,
     budget: &MemBudget,
 ) -> Result<(GpuCast, Batch<f32>)> {
-    let cast = g.cast_camera(cam, gen, &gpu_params(p), keep_rays, budget)?;
+    let gp = GpuCastParams {
+        beam,
+        ..gpu_params(p)
+    };
+    let cast = g.cast_camera(cam, gen, &gp, keep_rays, budget)?;
     let (o, d) = cast
         .rays
         .iter()

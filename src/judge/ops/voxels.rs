@@ -41,7 +41,7 @@ use crate::voxels::shape::Shape;
 use crate::voxels::through::{CastPath, Through};
 
 ops! {
-    "voxels.render" CpuGpuF32 render ["rays", "count", "seed", "cast"]
+    "voxels.render" CpuGpuF32 render ["rays", "count", "seed", "cast", "beam"]
         "ESVO cast of a voxels scene: hit, t, leaf, normal, image, iters; build_s, bytes_per_voxel, mrays_per_s";
     "voxels.referee" Any referee_op ["rays", "count", "seed", "near_margin"]
         "exact f64 Amanatides-Woo DDA over the scene predicate: hit, t, leaf, normal, tie, near_tie, untied, clear";
@@ -55,7 +55,7 @@ ops! {
         "distinct non-uniform cube contents per level from the scene predicate (nodes_per_level; depth <= 7)";
     "voxels.contour_error" Cpu contour_op []
         "t error of cubes vs contours against the analytic sphere (max, p99); per ray box_excess and slab_excess of contour hits";
-    "voxels.gpu_parity" GpuF32 gpu_parity ["rays", "count", "seed", "ulp_margin"]
+    "voxels.gpu_parity" GpuF32 gpu_parity ["rays", "count", "seed", "ulp_margin", "beam"]
         "GPU vs CPU f32 voxel cast on the same rays: both outputs (and with scene attributes both attribute images, image / cpu_image), excused (referee ties / one-ulp near ties where leaves differ, and in contour casts slab ties at the leaf one cast passed), normal_not_excused (also normal ties where normals differ)";
     "voxels.gpu_bench" GpuF32 gpu_bench ["count", "size", "seed"]
         "CPU per-ray, CPU packet and GPU casts of octree and DAG in one run, coherent (size^2 camera; size 0: the scene's width x height) and incoherent (count): Mrays/CPU-s, GPU Mrays/s (submit to readback, and kernels alone on the GPU clock where the adapter has timestamps), packet speedup, mean iterations, node bytes per ray";
@@ -256,8 +256,9 @@ fn contour_op(ctx: &OpCtx) -> Result<Outputs> {
 }
 
 /// Casts the case's rays on the GPU: camera rays are generated there (and
-/// read back when `keep`), other sources are uploaded. The cast, the rays
-/// as the kernel saw them, the cast parameters.
+/// read back when `keep`) and cast from the GPU's beam starts unless param
+/// `beam` is false, other sources are uploaded. The cast, the rays as the
+/// kernel saw them, the cast parameters.
 fn gpu_run(
     ctx: &OpCtx,
     sc: &VoxelScene,
@@ -278,7 +279,8 @@ fn gpu_run(
         lod,
         max_iter,
     };
-    let (cast, b) = cast_camera(&g, (&cam, &gen), &p, keep, &ctx.budget)?;
+    let beam = ctx.param_or("beam", true)?;
+    let (cast, b) = cast_camera(&g, (&cam, &gen), (&p, beam), keep, &ctx.budget)?;
     Ok((cast, b, p))
 }
 
