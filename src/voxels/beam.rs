@@ -879,6 +879,21 @@ mod tests {
     }
 
     #[test]
+    fn the_gpu_twin_holds_the_same_constants() {
+        assert!((COS_MAX_HALF_ANGLE - MAX_HALF_ANGLE.cos()).abs() <= 1e-16);
+        let k = include_str!("../../kernels/voxel_beam.wgsl");
+        let value = |name: &str| -> f64 {
+            let head = format!("const {name}: f64 = ");
+            let line = k.lines().find(|l| l.starts_with(&head)).unwrap();
+            line[head.len()..].trim_end_matches("lf;").parse().unwrap()
+        };
+        assert_eq!(value("MARGIN"), MARGIN);
+        assert_eq!(value("COS_MAX_HALF_ANGLE"), COS_MAX_HALF_ANGLE);
+        assert_eq!(value("WIDEN"), WIDEN);
+        assert!(k.contains(&format!("const BEAM_TILE: u32 = {TILE}u;")));
+    }
+
+    #[test]
     fn the_cosine_cone_test_agrees_with_the_angle_test() {
         // The trigonometric form of [`Cone::meets_sphere`] (without slack) on boxes
         // scattered about a cone: never a false `false`, and the two agree
