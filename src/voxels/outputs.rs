@@ -194,7 +194,9 @@ impl<F: Real> Batch<F> {
         dump: bool,
         out: &mut Outputs,
     ) -> Result<()> {
-        let n = self.o.len() as u64;
+        // The cast's rays (a GPU camera cast reads its rays back only when
+        // dumping: `self` may hold none).
+        let n = h.hit.len() as u64;
         if dump {
             out.tensor("rays", self.to_rays().to_tensor()?);
         }
@@ -243,4 +245,36 @@ pub fn gpu_cast_outputs(
         None => None,
     };
     b.cast_outputs((h, img), (cast.gpu_s, hits), depth, dump, out)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A GPU camera cast's batch holds no rays unless they were read back:
+    /// the rate and the `rays` counter count the cast's results.
+    #[test]
+    fn cast_outputs_count_the_results_when_the_batch_holds_no_rays() {
+        let b = Batch::<f32> {
+            o: Vec::new(),
+            d: Vec::new(),
+            shape: vec![2, 3],
+            near: 0.0,
+            far: 1.0,
+            kind: None,
+        };
+        let h = VoxelHits::<f32> {
+            hit: vec![0; 6],
+            t: vec![-1.0; 6],
+            leaf: vec![[-1; 3]; 6],
+            normal: vec![[0.0; 3]; 6],
+            iters: vec![0; 6],
+            capped: 0,
+        };
+        let mut out = Outputs::default();
+        b.cast_outputs((h, None), (2e-6, 0), 4, false, &mut out)
+            .unwrap();
+        assert_eq!(out.counters["rays"], 6);
+        assert!((out.metrics["mrays_per_s"] - 3.0).abs() < 1e-9);
+    }
 }
