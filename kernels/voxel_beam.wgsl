@@ -9,17 +9,25 @@
 // division and square root may round differently (the starts agree to
 // about 1e-15 relative, far inside `MARGIN`).
 // Parity cases: TESTS/voxels/manifest_gpu.yaml `voxel_gpu_*` (every camera
-// cast there starts from these tiles: identical leaf to the CPU cast from
-// `near`), and src/gpu/voxels.rs `beam_tiles` against `beam_nears` (unit
-// test `gpu_beam_tiles_match_the_cpu_beam`).
+// cast there starts from these tiles: identical leaf to the CPU's cast from
+// its own beam starts, contours to the CPU's from `near`), and
+// src/gpu/voxels.rs `beam_tiles` against `beam_nears` (unit test
+// src/voxels/gpu.rs `gpu_beam_tiles_match_the_cpu_beam`).
 //
 // Why the start is safe: see src/voxels/beam.rs (the start never passes a
-// hit, and the cast from it makes the same decisions as from `near`).
+// hit, and the cast from it makes the same decisions as from `near`). Two
+// things the CPU argument does not cover hold here too: with contours a
+// leaf's solid slab lies inside its box, so the nearest box still bounds
+// the hit; and this module's `camera_ray` may round a ray differently from
+// voxels.wgsl's if the driver fuses multiply-adds differently, a change of
+// an f32 ulp or so that the cone's `slack` (twice the cast's rounding
+// bound, about 1e-6 of the distance or more) and `MARGIN` absorb. Where
+// the CPU checks that a ray's |d|^2 is finite and the axis's length too,
+// this kernel does not: f32 camera rays cannot overflow in f64.
 // WGSL's f64 has no trigonometric functions: the cone's half-angle is kept
 // as its cosine and sine (src/voxels/beam.rs `ConeAcc::finish` does the
 // same), and no infinity: `NO_BOX` stands for it.
 
-const BEAM_TILE: u32 = 8u;
 const MARGIN: f64 = 1e-5lf;
 const COS_MAX_HALF_ANGLE: f64 = 0.8775825618903728lf;
 const WIDEN: f64 = 1e-9lf;
@@ -164,8 +172,8 @@ fn start_distance(k: Cone) -> f64 {
     return best;
 }
 
-// One tile's start: the tile's rays (the f32 camera rays `cast_camera`
-// casts) bound by a cone about the sum of its first and last directions, the
+// One tile's start (`beam_tile_size`: 8x8, or 64x1 in a region one row
+// high): the tile's rays (the f32 camera rays `cast_camera` casts) bound by a cone about the sum of its first and last directions, the
 // walk, the pull-back. `meets` 0: no non-empty box meets the cone (every ray
 // a miss); a tile without a cone (rays from differing origins, one too wide,
 // an LOD cut) starts at `V.near`.
@@ -174,15 +182,16 @@ fn start_distance(k: Cone) -> f64 {
 fn beam_nears(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
     let w = C.roi_w;
     let h = V.n / w;
-    let tiles_x = (w + BEAM_TILE - 1u) / BEAM_TILE;
+    let s = beam_tile_size(h);
+    let tiles_x = beam_tiles_x(w, h);
     let t = linear_id(gid, nwg, 64u);
-    if (t >= tiles_x * ((h + BEAM_TILE - 1u) / BEAM_TILE)) {
+    if (t >= tiles_x * ((h + s.y - 1u) / s.y)) {
         return;
     }
-    let x0 = (t % tiles_x) * BEAM_TILE;
-    let y0 = (t / tiles_x) * BEAM_TILE;
-    let x1 = min(x0 + BEAM_TILE, w);
-    let y1 = min(y0 + BEAM_TILE, h);
+    let x0 = (t % tiles_x) * s.x;
+    let y0 = (t / tiles_x) * s.y;
+    let x1 = min(x0 + s.x, w);
+    let y1 = min(y0 + s.y, h);
     var out: BeamTile;
     out.near = V.near;
     out.meets = 1u;

@@ -70,6 +70,20 @@ struct BeamTile {
     meets: u32,
 }
 
+const BEAM_TILE: u32 = 8u;
+
+// A beam tile's width and height in a region h rows high: 8x8 pixels, runs
+// of 64 in a region one row high. CPU twin: src/voxels/tiles.rs `Tiling::new`.
+fn beam_tile_size(h: u32) -> vec2<u32> {
+    return select(vec2<u32>(BEAM_TILE), vec2<u32>(BEAM_TILE * BEAM_TILE, 1u), h == 1u);
+}
+
+// The beam tiles across a region w pixels wide.
+fn beam_tiles_x(w: u32, h: u32) -> u32 {
+    let s = beam_tile_size(h);
+    return (w + s.x - 1u) / s.x;
+}
+
 // One ray's result (32 bytes). flags: bit 0 hit, bit 1 capped, bit 2 solid
 // leaf (0: LOD cut at an inner node), bits 8..16 level, bits 16..32 node
 // words read (descriptors, far pointers, the attribute base; saturating at
@@ -404,7 +418,8 @@ fn cast_camera(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workg
     var meets = 1u;
     if (V.beam == 1u) {
         let w = C.roi_w;
-        let b = beam[(i / w / 8u) * ((w + 7u) / 8u) + (i % w) / 8u];
+        let s = beam_tile_size(V.n / w);
+        let b = beam[(i / w / s.y) * beam_tiles_x(w, V.n / w) + (i % w) / s.x];
         near = b.near;
         meets = b.meets;
     }

@@ -160,13 +160,30 @@ pub struct GpuOctree<'c> {
     beam: Option<wgpu::ComputePipeline>,
 }
 
-/// Pixels per side of a beam tile (`BEAM_TILE` of the kernels; the CPU's
-/// `voxels::beam::TILE`).
+/// Pixels per side of a beam tile (`BEAM_TILE` of kernels/voxels.wgsl; the
+/// CPU's `voxels::beam::TILE`).
 pub const BEAM_TILE: u32 = 8;
 
-/// Beam tiles of a `w` x `h` region.
+/// Beam tiles of a `w` x `h` region: 8x8 pixels, or runs of 64 pixels
+/// in a region one row high (as the CPU's `voxels::tiles::Tiling`).
 fn beam_tile_count(w: u32, h: u32) -> u64 {
-    w.div_ceil(BEAM_TILE) as u64 * h.div_ceil(BEAM_TILE) as u64
+    if h == 1 {
+        w.div_ceil(BEAM_TILE * BEAM_TILE) as u64
+    } else {
+        w.div_ceil(BEAM_TILE) as u64 * h.div_ceil(BEAM_TILE) as u64
+    }
+}
+
+/// The beam pre-pass's pipeline where the adapter has f64 and its compiler
+/// takes the kernel; `None` (casts from `near`, a warning) otherwise, so a
+/// backend that cannot build it still casts.
+fn beam_pipeline(ctx: &GpuContext, k: &[(&str, f64)]) -> Option<wgpu::ComputePipeline> {
+    if !ctx.has_f64() {
+        return None;
+    }
+    pipeline_with(ctx, "voxel_beam", "beam_nears", k)
+        .inspect_err(|e| tracing::warn!("voxel beam pre-pass off: {e}"))
+        .ok()
 }
 
 /// Rays per dispatch: bounded so one batch's results fit a binding.
@@ -223,11 +240,7 @@ impl<'c> GpuOctree<'c> {
             depth,
             camera: pipeline_with(ctx, "voxels", "cast_camera", &k)?,
             given: pipeline_with(ctx, "voxels", "cast_rays", &k)?,
-            beam: if ctx.has_f64() {
-                Some(pipeline_with(ctx, "voxel_beam", "beam_nears", &k[..1])?)
-            } else {
-                None
-            },
+            beam: beam_pipeline(ctx, &k[..1]),
         })
     }
 
@@ -297,9 +310,11 @@ impl<'c> GpuOctree<'c> {
                 batch_rays(self.ctx)
             )));
         }
+        // Hits (and rays) and their readback, plus the beam tiles' 8 bytes
+        // per 64 rays (at most one byte a ray).
         budget.check(
             "gpu voxel cast results",
-            bytes_for(n, 2 * (32 + if keep_rays { 24 } else { 0 })),
+            bytes_for(n, 2 * (32 + if keep_rays { 24 } else { 0 }) + 1),
         )?;
         let beam = self.beam_runs(p);
         let vp = VoxParams {

@@ -882,6 +882,7 @@ mod tests {
     fn the_gpu_twin_holds_the_same_constants() {
         assert!((COS_MAX_HALF_ANGLE - MAX_HALF_ANGLE.cos()).abs() <= 1e-16);
         let k = include_str!("../../kernels/voxel_beam.wgsl");
+        let cast = include_str!("../../kernels/voxels.wgsl");
         let value = |name: &str| -> f64 {
             let head = format!("const {name}: f64 = ");
             let line = k.lines().find(|l| l.starts_with(&head)).unwrap();
@@ -890,7 +891,7 @@ mod tests {
         assert_eq!(value("MARGIN"), MARGIN);
         assert_eq!(value("COS_MAX_HALF_ANGLE"), COS_MAX_HALF_ANGLE);
         assert_eq!(value("WIDEN"), WIDEN);
-        assert!(k.contains(&format!("const BEAM_TILE: u32 = {TILE}u;")));
+        assert!(cast.contains(&format!("const BEAM_TILE: u32 = {TILE}u;")));
     }
 
     #[test]

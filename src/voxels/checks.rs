@@ -25,7 +25,7 @@ use super::referee_contour::{slab_tie, voxel_entry};
 use super::referee_mesh::{check_triangles, check_voxels};
 use super::render::{attr_image, cast_all, cast_all_contours, VoxelHits};
 use super::shape::Shape;
-use super::through::Through;
+use super::through::{CastPath, Through};
 use super::voxelise::MeshVoxels;
 
 /// Max and 99th percentile (nearest rank) of `v` (0, 0 when empty).
@@ -115,12 +115,16 @@ pub fn contour_error<F: CastReal>(
 }
 
 /// The GPU cast `g` of batch `b` against the CPU f32 cast of the same rays
-/// through the same structure `th`
-/// (with the kernel's iteration cap, so a capped ray is capped on both):
-/// the GPU's hits, the CPU's as `cpu_*`, `excused` / `not_excused` (see
-/// [`CastPair::leaf_ties`]), `normal_not_excused` (also excusing normal
-/// ties, see [`CastPair::normal_ties`]), `identical_frac` and `beam_ran`
-/// (1 when the GPU's camera rays started at its beam starts; scalars and
+/// through the same structure `th`, from the CPU's beam starts where the
+/// GPU's rays started at its own (octree and DAG; contours have no CPU beam
+/// path and are cast from `near`), with the kernel's iteration cap, so a
+/// ray capped on one side is capped on the other (the beam starts of the
+/// two sides may differ by an f32 ulp in a few tiles, and so the iteration
+/// counts of their rays): the GPU's hits, the CPU's as `cpu_*`, `excused` /
+/// `not_excused` (see [`CastPair::leaf_ties`]), `normal_not_excused` (also
+/// excusing normal ties, see [`CastPair::normal_ties`]), `identical_frac`,
+/// `beam_ran` (1 when the GPU's camera rays started at its beam starts) and
+/// `shader_f64` (1 when the adapter can run the beam pre-pass; scalars and
 /// metrics), counters `rays`,
 /// `differ`, `excused`, `unexcused`, `normal_differ`, `normal_excused`,
 /// `gpu_capped`, `cpu_capped`; with `attrs`, the images shaded from the
@@ -142,7 +146,12 @@ pub fn gpu_parity(
         max_iter: g.max_iter,
         ..*p
     };
-    let cpu = th.cast_all::<f32>(&b.o, &b.d, &p);
+    let cpu = match th {
+        Through::Octree(_) | Through::Dag(_) if g.beam => {
+            th.cast_by::<f32>(CastPath::Beam, &b.shape, &b.o, &b.d, &p)?
+        }
+        _ => th.cast_all::<f32>(&b.o, &b.d, &p),
+    };
     let gpu = hits_from_gpu(&g.hits);
     let n = gpu.hit.len();
     let pair = CastPair {
@@ -175,8 +184,11 @@ pub fn gpu_parity(
     out.metric("identical_frac", identical);
     out.tensor("identical_frac", Tensor::scalar(identical));
     // Whether the camera rays started at the GPU's beam starts.
-    out.metric("beam_ran", g.beam as u8 as f64);
-    out.tensor("beam_ran", Tensor::scalar(g.beam as u8 as f64));
+    let f64s = GpuContext::get()?.has_f64();
+    for (k, v) in [("beam_ran", g.beam), ("shader_f64", f64s)] {
+        out.metric(k, v as u8 as f64);
+        out.tensor(k, Tensor::scalar(v as u8 as f64));
+    }
     let not_excused: Vec<u8> = excused.iter().map(|&x| 1 - x).collect();
     let normal_not_excused: Vec<u8> = (excused.iter().zip(&normal_ok))
         .map(|(&x, &y)| 1 - (x | y))

@@ -140,6 +140,7 @@ pub fn attr_image_gpu(
 mod tests {
     use super::*;
     use crate::gpu::voxels::GpuAddressing;
+    use crate::rays::Roi;
     use crate::voxels::beam::{beam_nears, TILE};
     use crate::voxels::cast::{Absolute, Lod, Relative};
     use crate::voxels::dag::build_dag;
@@ -167,67 +168,94 @@ mod tests {
         build(&Shape::Menger { level: 5 }, SPONGE_DEPTH, budget).unwrap()
     }
 
-    /// A 123 x 77 view of a Menger sponge (partial tiles at the right and
-    /// bottom), its f32 camera rays and their cast parameters.
-    fn sponge_view(budget: &MemBudget) -> (Camera, RayGen, Batch<f32>, CastParams) {
-        let (w, h) = (123, 77);
+    /// A `w` x `h` view of a Menger sponge (its rows `rows` only when
+    /// given), its f32 camera rays and their cast parameters.
+    fn sponge_view(
+        budget: &MemBudget,
+        (w, h): (u32, u32),
+        rows: Option<(u32, u32)>,
+    ) -> (Camera, RayGen, Batch<f32>, CastParams) {
         let cam = Camera::pinhole_look_at([2.0, 1.5, 2.5], [0.0; 3], [0.0, 1.0, 0.0], 45.0, w, h)
             .unwrap();
-        let gen = RayGen::new(w, h);
+        let mut gen = RayGen::new(w, h);
+        gen.roi = rows.map(|(y, height)| Roi {
+            x: 0,
+            y,
+            width: w,
+            height,
+        });
         let b = Batch::<f32>::camera(&cam, &gen, budget).unwrap();
         let p = b.params(None, 1 << 16);
         (cam, gen, b, p)
     }
 
     /// The GPU's tile starts (kernels/voxel_beam.wgsl) against the CPU's
-    /// (`beam_nears`, the f32 rays' tiles), octree and DAG: the same tiles
-    /// meet nothing, the others start at the same f32 distance (the GPU's
-    /// f64 division may round apart: within 2^-20 relative).
+    /// (`beam_nears`, the f32 rays' tiles), octree and DAG, at 123 x 77
+    /// (partial tiles at the right and bottom) and one row of a 300 x 300
+    /// image (runs of 64):
+    /// the same tiles meet nothing, the others start at the same f32
+    /// distance (the GPU's f64 square root or division may round apart:
+    /// within 2^-20 relative).
     #[test]
     fn gpu_beam_tiles_match_the_cpu_beam() {
         let Some(ctx) = f64_gpu() else { return };
         let budget = MemBudget::fixed(1 << 30);
         let (depth, t) = (SPONGE_DEPTH, sponge(&budget));
         let dag = build_dag(&t, &budget).unwrap();
-        let (cam, gen, b, p) = sponge_view(&budget);
-        let tiles = Tiling::new(&b.shape, b.o.len(), TILE);
-        let all = 0..tiles.bands();
-        let cpu = [
-            beam_nears::<f32, Relative>(&t.nodes, depth, &tiles, all.clone(), &b.o, &b.d, &p),
-            beam_nears::<f32, Absolute>(&dag.nodes, depth, &tiles, all, &b.o, &b.d, &p),
-        ];
-        let uploads = [
-            (&t.nodes, GpuAddressing::Relative),
-            (&dag.nodes, GpuAddressing::Absolute),
-        ];
-        let (w, across) = (123usize, 123usize.div_ceil(TILE));
-        for ((nodes, addressing), cpu) in uploads.into_iter().zip(cpu) {
-            let cpu = cpu.unwrap();
-            let g = GpuOctree::with(ctx, nodes, depth, addressing, None).unwrap();
-            let gpu = g.beam_tiles(&cam, &gen, &gpu_params(&p)).unwrap();
-            assert_eq!(gpu.len(), across * 77usize.div_ceil(TILE));
-            let (mut started, mut empty, mut equal) = (0, 0, 0);
-            for (k, tile) in gpu.iter().enumerate() {
-                let first = (k / across) * TILE * w + (k % across) * TILE;
-                let want = cpu[first];
-                if want == f64::INFINITY {
-                    assert_eq!(tile.meets, 0, "tile {k}");
-                    empty += 1;
-                    continue;
+        for (size, rows) in [((123, 77), None), ((300, 300), Some((150, 1)))] {
+            let (cam, gen, b, p) = sponge_view(&budget, size, rows);
+            let [h, w] = gen.shape();
+            let tiles = Tiling::new(&b.shape, b.o.len(), TILE);
+            let all = 0..tiles.bands();
+            let cpu = [
+                beam_nears::<f32, Relative>(&t.nodes, depth, &tiles, all.clone(), &b.o, &b.d, &p),
+                beam_nears::<f32, Absolute>(&dag.nodes, depth, &tiles, all, &b.o, &b.d, &p),
+            ];
+            let uploads = [
+                (&t.nodes, GpuAddressing::Relative),
+                (&dag.nodes, GpuAddressing::Absolute),
+            ];
+            // Each GPU tile's first ray: 8x8 tiles row by row, or runs of 64.
+            let (tw, th) = if h == 1 {
+                (TILE * TILE, 1)
+            } else {
+                (TILE, TILE)
+            };
+            let across = w.div_ceil(tw);
+            for ((nodes, addressing), cpu) in uploads.into_iter().zip(cpu) {
+                let cpu = cpu.unwrap();
+                let g = GpuOctree::with(ctx, nodes, depth, addressing, None).unwrap();
+                let gpu = g.beam_tiles(&cam, &gen, &gpu_params(&p)).unwrap();
+                assert_eq!(gpu.len(), across * h.div_ceil(th));
+                let (mut started, mut empty, mut equal) = (0, 0, 0);
+                for (k, tile) in gpu.iter().enumerate() {
+                    let want = cpu[(k / across) * th * w + (k % across) * tw];
+                    if want == f64::INFINITY {
+                        assert_eq!(tile.meets, 0, "tile {k}");
+                        empty += 1;
+                        continue;
+                    }
+                    assert_eq!(tile.meets, 1, "tile {k}");
+                    let want = want as f32;
+                    let diff = (tile.near - want).abs();
+                    assert!(
+                        diff <= 2f32.powi(-20) * want.abs(),
+                        "tile {k}: {} against {want}",
+                        tile.near
+                    );
+                    started += (want > p.near as f32) as u32;
+                    equal += (tile.near.to_bits() == want.to_bits()) as u32;
                 }
-                assert_eq!(tile.meets, 1, "tile {k}");
-                let want = want as f32;
-                let rel = ((tile.near - want) / want).abs();
-                assert!(
-                    rel <= 2f32.powi(-20),
-                    "tile {k}: {} against {want}",
-                    tile.near
+                if h > 1 {
+                    assert!(started > 40 && empty > 10, "{started} {empty}");
+                } else {
+                    assert!(started >= 2, "{started}");
+                }
+                eprintln!(
+                    "{w}x{h} {addressing:?}: {empty} of {} tiles empty, {equal} bit-equal",
+                    gpu.len()
                 );
-                started += (want > p.near as f32) as u32;
-                equal += (tile.near == want) as u32;
             }
-            assert!(started > 40 && empty > 10, "{started} {empty}");
-            eprintln!("{addressing:?}: {equal} of {} tiles bit-equal", gpu.len());
         }
     }
 
@@ -239,13 +267,13 @@ mod tests {
         let Some(ctx) = f64_gpu() else { return };
         let budget = MemBudget::fixed(1 << 30);
         let (depth, t) = (SPONGE_DEPTH, sponge(&budget));
-        let (cam, gen, _, p) = sponge_view(&budget);
+        let (cam, gen, _, p) = sponge_view(&budget, (123, 77), None);
         let g = GpuOctree::new(ctx, &t.nodes, depth).unwrap();
         let on = gpu_params(&p);
         let off = GpuCastParams { beam: false, ..on };
         let plain = g.cast_camera(&cam, &gen, &off, false, &budget).unwrap();
         assert!(!plain.beam);
-        let key = |h: &GpuVoxelHit| (h.t.to_bits(), h.voxel, h.normal, h.flags & 0xFFFF);
+        let key = |h: &GpuVoxelHit| (h.t.to_bits(), h.voxel, h.normal, h.attr, h.flags & 0xFFFF);
         for order in [ThreadOrder::Tiles, ThreadOrder::Rows] {
             let beam = g
                 .cast_camera(&cam, &gen, &GpuCastParams { order, ..on }, false, &budget)

@@ -42,7 +42,7 @@ use crate::voxels::through::{CastPath, Through};
 
 ops! {
     "voxels.render" CpuGpuF32 render ["rays", "count", "seed", "cast", "beam"]
-        "ESVO cast of a voxels scene: hit, t, leaf, normal, image, iters; build_s, bytes_per_voxel, mrays_per_s";
+        "ESVO cast of a voxels scene: hit, t, leaf, normal, image, iters; build_s, bytes_per_voxel, mrays_per_s (param beam: GPU camera rays from the beam pre-pass, default true; the CPU's path is param cast)";
     "voxels.referee" Any referee_op ["rays", "count", "seed", "near_margin"]
         "exact f64 Amanatides-Woo DDA over the scene predicate: hit, t, leaf, normal, tie, near_tie, untied, clear";
     "voxels.sphere_bounds" Any sphere_bounds_op ["rays", "count", "seed", "slack_rel"]
