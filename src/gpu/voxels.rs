@@ -389,17 +389,27 @@ impl<'c> GpuOctree<'c> {
         cam: &Camera,
         gen: &RayGen,
         p: &GpuCastParams,
+        budget: &MemBudget,
     ) -> Result<Vec<GpuBeamTile>> {
         gen.validate()?;
         cam.validate()?;
         let Some(bp) = &self.beam else {
             return Err(Error::NotSupported(
-                "gpu voxel beam: the adapter has no SHADER_F64".into(),
+                "gpu voxel beam: not available (the adapter has no SHADER_F64, or its \
+                 backend refused kernels/voxel_beam.wgsl)"
+                    .into(),
             ));
         };
         let roi = gen.region();
         let n = roi.width as u64 * roi.height as u64;
+        if n > u32::MAX as u64 {
+            return Err(Error::NotSupported(format!(
+                "gpu voxel beam: {n} camera rays in one image, over the {} the kernel counts",
+                u32::MAX
+            )));
+        }
         let n_tiles = beam_tile_count(roi.width, roi.height);
+        budget.check("gpu voxel beam tiles", bytes_for(n_tiles, 2 * 8))?;
         let vu = uniform(self.ctx, "voxel params", &self.params(p, n as u32, false)?);
         let cu = uniform(self.ctx, "voxel camera", &RayParams::new(cam, gen));
         let tiles = storage_out(self.ctx, "voxel beam tiles", n_tiles * 8)?;

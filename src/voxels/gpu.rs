@@ -225,7 +225,7 @@ mod tests {
             for ((nodes, addressing), cpu) in uploads.into_iter().zip(cpu) {
                 let cpu = cpu.unwrap();
                 let g = GpuOctree::with(ctx, nodes, depth, addressing, None).unwrap();
-                let gpu = g.beam_tiles(&cam, &gen, &gpu_params(&p)).unwrap();
+                let gpu = g.beam_tiles(&cam, &gen, &gpu_params(&p), &budget).unwrap();
                 assert_eq!(gpu.len(), across * h.div_ceil(th));
                 let (mut started, mut empty, mut equal) = (0, 0, 0);
                 for (k, tile) in gpu.iter().enumerate() {
