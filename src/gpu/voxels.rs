@@ -79,6 +79,20 @@ impl GpuVoxelHit {
     pub fn normal(&self) -> [i8; 3] {
         [0, 8, 16].map(|s| (self.normal >> s & 0xFF) as i8 - 1)
     }
+
+    /// Everything but how the cast got there (its iterations and node
+    /// words read): t's bits, voxel, normal, attribute, hit / capped /
+    /// solid flags and level. Casts from the beam start and from `near`
+    /// agree on it.
+    pub fn outcome(&self) -> (u32, [u32; 3], u32, u32, u32) {
+        (
+            self.t.to_bits(),
+            self.voxel,
+            self.normal,
+            self.attr,
+            self.flags & 0xFFFF,
+        )
+    }
 }
 
 /// The cast's options, already in the kernel's f32 (the CPU cast rounds
@@ -93,9 +107,9 @@ pub struct GpuCastParams {
     pub max_iter: u32,
     /// Which camera ray a thread casts (`cast_camera` only).
     pub order: ThreadOrder,
-    /// Camera rays start at their 8x8 tile's beam start (`cast_camera`
-    /// only; run where the adapter has f64 and there is no LOD cut, see
-    /// [`GpuOctree::beam_runs`]).
+    /// Camera rays start at their tile's beam start (`cast_camera` only;
+    /// run where the adapter has f64 and there is no LOD cut;
+    /// [`GpuCast::beam`] says whether it ran).
     pub beam: bool,
 }
 
@@ -244,10 +258,10 @@ impl<'c> GpuOctree<'c> {
         })
     }
 
-    /// Whether a camera cast with `p` starts from beam starts: asked for,
-    /// the adapter has f64, and no LOD cut (whose stop need not be solid).
-    pub fn beam_runs(&self, p: &GpuCastParams) -> bool {
-        p.beam && self.beam.is_some() && p.lod.is_none()
+    /// The beam pre-pass a camera cast with `p` runs: asked for, built (the
+    /// adapter has f64), and no LOD cut (whose stop need not be solid).
+    fn beam_for(&self, p: &GpuCastParams) -> Option<&wgpu::ComputePipeline> {
+        self.beam.as_ref().filter(|_| p.beam && p.lod.is_none())
     }
 
     /// The iteration cap the kernel runs with: `max_iter`, clamped below
@@ -316,7 +330,8 @@ impl<'c> GpuOctree<'c> {
             "gpu voxel cast results",
             bytes_for(n, 2 * (32 + if keep_rays { 24 } else { 0 }) + 1),
         )?;
-        let beam = self.beam_runs(p);
+        let beam_pass = self.beam_for(p);
+        let beam = beam_pass.is_some();
         let vp = VoxParams {
             beam: beam as u32,
             ..self.params(p, n as u32, keep_rays)?
@@ -343,7 +358,7 @@ impl<'c> GpuOctree<'c> {
             (8, &tiles),
         ];
         let mut passes = Vec::with_capacity(2);
-        if let (true, Some(bp)) = (beam, &self.beam) {
+        if let Some(bp) = beam_pass {
             passes.push(Pass {
                 label: "beam_nears",
                 pipeline: bp,
@@ -382,8 +397,9 @@ impl<'c> GpuOctree<'c> {
     }
 
     /// The beam pre-pass alone (`kernels/voxel_beam.wgsl` `beam_nears`):
-    /// one [`GpuBeamTile`] per 8x8 tile of `gen`'s region, row by row; an
-    /// error where the adapter has no f64.
+    /// one [`GpuBeamTile`] per tile of `gen`'s region (8x8 pixels row by
+    /// row, runs of 64 in a region one row high); an error where the
+    /// pre-pass was not built.
     pub fn beam_tiles(
         &self,
         cam: &Camera,

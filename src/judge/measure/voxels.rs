@@ -7,7 +7,7 @@ use super::timed;
 use crate::budget::{bytes_for, MemBudget};
 use crate::camera::Camera;
 use crate::error::Result;
-use crate::gpu::voxels::{GpuCast, GpuCastParams, GpuOctree, GpuVoxelHit};
+use crate::gpu::voxels::{GpuCast, GpuCastParams, GpuOctree};
 use crate::gpu::GpuContext;
 use crate::rays::thread_order::{warp_efficiency, ThreadOrder};
 use crate::rays::RayGen;
@@ -291,18 +291,18 @@ fn differing<F: Real>(a: &VoxelHits<F>, b: &VoxelHits<F>) -> u64 {
 /// (none: only the thread moves) and between the beam and `near` starts
 /// other than in iterations and node words read (none: the beam start never
 /// passes a hit); whether the beam ran (the adapter has f64).
-struct Orders {
+struct CameraCasts {
     gpu_s: [f64; 3],
     kernel_s: [Option<f64>; 3],
     warp32: [f64; 2],
-    differing: u64,
+    order_differing: u64,
     beam_differing: u64,
     beam_iters: f64,
     beam_ran: bool,
     rays: f64,
 }
 
-/// The variants [`thread_orders`] casts: rows from the beam, tiles from the
+/// The variants [`camera_casts`] casts: rows from the beam, tiles from the
 /// beam (the default), tiles from `near`.
 const VARIANTS: [(ThreadOrder, bool); 3] = [
     (ThreadOrder::Rows, true),
@@ -310,7 +310,7 @@ const VARIANTS: [(ThreadOrder, bool); 3] = [
     (ThreadOrder::Tiles, false),
 ];
 
-impl Orders {
+impl CameraCasts {
     /// `{s}_gpu_coherent_rows_kernel_mrays_per_s` and
     /// `{s}_gpu_coherent_plain_kernel_mrays_per_s` (`..._mrays_per_s`
     /// without timestamps; the tiled beam figures are the scenario's
@@ -349,7 +349,7 @@ impl Orders {
         );
         out.metric(
             &format!("{s}_gpu_coherent_order_differing_rays"),
-            self.differing as f64,
+            self.order_differing as f64,
         );
         out.metric(
             &format!("{s}_gpu_coherent_beam_differing_rays"),
@@ -368,19 +368,19 @@ impl Orders {
 
 /// [`ROUNDS`] interleaved rounds of the camera cast in the three
 /// [`VARIANTS`] (which goes first rotates; `p.order` and `p.beam` are
-/// ignored) after [`warm_up`]; seconds a cast averaged over the rounds, the
-/// last tiled beam cast and the last cast from `near`.
-fn thread_orders(
+/// ignored) after [`warm_up`]; seconds a cast averaged over the rounds, and
+/// the last cast from `near`.
+fn camera_casts(
     g: &GpuOctree,
     (cam, gen): (&Camera, &RayGen),
     p: &GpuCastParams,
     budget: &MemBudget,
-) -> Result<(Orders, GpuCast, GpuCast)> {
-    let mut ord = Orders {
+) -> Result<(CameraCasts, GpuCast)> {
+    let mut cc = CameraCasts {
         gpu_s: [0.0; 3],
         kernel_s: [Some(0.0); 3],
         warp32: [0.0; 2],
-        differing: 0,
+        order_differing: 0,
         beam_differing: 0,
         beam_iters: 0.0,
         beam_ran: false,
@@ -401,8 +401,8 @@ fn thread_orders(
         for j in 0..VARIANTS.len() {
             let k = (round + j) % VARIANTS.len();
             let c = cast(VARIANTS[k])?;
-            ord.gpu_s[k] += c.gpu_s;
-            ord.kernel_s[k] = ord.kernel_s[k].zip(c.kernel_s).map(|(a, b)| a + b);
+            cc.gpu_s[k] += c.gpu_s;
+            cc.kernel_s[k] = cc.kernel_s[k].zip(c.kernel_s).map(|(a, b)| a + b);
             last[k] = Some(c);
         }
     }
@@ -410,23 +410,21 @@ fn thread_orders(
         unreachable!("ROUNDS > 0")
     };
     let r = ROUNDS as f64;
-    ord.gpu_s = ord.gpu_s.map(|s| s / r);
-    ord.kernel_s = ord.kernel_s.map(|s| s.map(|s| s / r));
+    cc.gpu_s = cc.gpu_s.map(|s| s / r);
+    cc.kernel_s = cc.kernel_s.map(|s| s.map(|s| s / r));
     let iters: Vec<u32> = tiles.hits.iter().map(|h| h.iters).collect();
-    ord.rays = iters.len() as f64;
-    ord.beam_iters = mean(iters.iter().map(|&i| i as f64));
-    ord.beam_ran = tiles.beam;
+    cc.rays = iters.len() as f64;
+    cc.beam_iters = mean(iters.iter().map(|&i| i as f64));
+    cc.beam_ran = tiles.beam;
     let w = gen.region().width;
-    ord.warp32 = [ThreadOrder::Rows, ThreadOrder::Tiles].map(|o| warp_efficiency(&iters, o, w, 32));
-    ord.differing = (rows.hits.iter().zip(&tiles.hits))
+    cc.warp32 = [ThreadOrder::Rows, ThreadOrder::Tiles].map(|o| warp_efficiency(&iters, o, w, 32));
+    cc.order_differing = (rows.hits.iter().zip(&tiles.hits))
         .filter(|(a, b)| bytemuck::bytes_of(*a) != bytemuck::bytes_of(*b))
         .count() as u64;
-    // Everything but the iterations and the node words read (flags' high half).
-    let key = |h: &GpuVoxelHit| (h.t.to_bits(), h.voxel, h.normal, h.attr, h.flags & 0xFFFF);
-    ord.beam_differing = (plain.hits.iter().zip(&tiles.hits))
-        .filter(|(a, b)| key(a) != key(b))
+    cc.beam_differing = (plain.hits.iter().zip(&tiles.hits))
+        .filter(|(a, b)| a.outcome() != b.outcome())
         .count() as u64;
-    Ok((ord, tiles, plain))
+    Ok((cc, plain))
 }
 
 /// Wall seconds of GPU casts run before a timed one: the first dispatch of
@@ -492,7 +490,7 @@ pub const ROUNDS: u32 = 3;
 /// `{structure}_{set}_{path}_differing_rays` (hit, t, leaf or normal bits
 /// against per-ray), `{structure}_gpu_{set}_mrays_per_s`,
 /// the coherent GPU figures in [`ThreadOrder::Tiles`] with the
-/// [`Orders`] metrics beside them ([`thread_orders`]),
+/// [`CameraCasts`] metrics beside them ([`camera_casts`]),
 /// `{structure}_{set}_mean_iters` (per-ray; the GPU's are the same),
 /// `{structure}_{set}_{path}_mean_iters` (fewer on the beam path),
 /// `{structure}_{set}_node_bytes_per_ray` (4 x node words the kernel read;
@@ -554,9 +552,9 @@ pub fn cpu_vs_gpu(
             // `gc`: the cast whose node words are reported (from `near`, as
             // the per-ray CPU cast reads them).
             let (gpu_s, kernel_s, gc) = if set == "coherent" {
-                let (ord, _, plain) = thread_orders(&g, (cam, gen), &gpu_params(&p), budget)?;
-                ord.report(sname, out);
-                (ord.gpu_s[1], ord.kernel_s[1], plain)
+                let (cc, plain) = camera_casts(&g, (cam, gen), &gpu_params(&p), budget)?;
+                cc.report(sname, out);
+                (cc.gpu_s[1], cc.kernel_s[1], plain)
             } else {
                 warm_up(|| g.cast_rays(&packed, &gpu_params(&p), budget).map(drop))?;
                 let gc = g.cast_rays(&packed, &gpu_params(&p), budget)?;
