@@ -806,6 +806,45 @@ fn render_within_10_s(scene: &str, args: &[&str]) -> Output {
     o
 }
 
+/// `--param` reaches the render operation as a manifest case's `params:`
+/// would: the voxel cast of 10 incoherent rays writes 10 hits (the camera
+/// would write 8x8), two cast paths write the same bytes, and keys the
+/// operation does not take are refused by name.
+#[test]
+fn render_passes_operation_parameters_and_refuses_unknown_ones() {
+    let sphere = "TESTS/scenes/voxel_sphere.yaml";
+    let small = ["--set", "width=8", "--set", "height=8"];
+    let t_of = |params: &[&str]| {
+        let out = tmp("param");
+        let o = hpjudge()
+            .args(["render", sphere])
+            .args(small)
+            .args(params.iter().flat_map(|p| ["--param", p]))
+            .arg("--out")
+            .arg(&out)
+            .output()
+            .unwrap();
+        assert_eq!(o.status.code(), Some(0), "{params:?}: {}", text(&o));
+        std::fs::read(out.join("t.npy")).unwrap()
+    };
+    let header = |b: &[u8]| String::from_utf8_lossy(&b[..b.len().min(128)]).into_owned();
+    let camera = t_of(&[]);
+    assert!(header(&camera).contains("(8, 8)"), "{}", header(&camera));
+    let ten = t_of(&["rays=incoherent", "count=10", "cast=per_ray"]);
+    assert!(header(&ten).contains("(10,)"), "{}", header(&ten));
+    assert_eq!(ten, t_of(&["rays=incoherent", "count=10", "cast=lanes"]));
+    for (param, expect) in [
+        ("nope=1", "takes no parameter \"nope\""),
+        ("cast=nope", "cast"),
+        ("grad_from=g.npy", "--grad-from"),
+        ("beam", "expected key=value"),
+    ] {
+        let o = render(sphere, &[&small[..], &["--param", param]].concat());
+        assert_eq!(o.status.code(), Some(2), "{param}: {}", text(&o));
+        assert!(text(&o).contains(expect), "{param}: {}", text(&o));
+    }
+}
+
 #[test]
 fn path_tracer_refuses_f64_rays_grad_from_and_absurd_spp_before_work() {
     let cornell = "TESTS/scenes/cornell_box.yaml";

@@ -159,6 +159,10 @@ struct RenderArgs {
     /// Override a scene parameter: key=value (dotted paths allowed).
     #[arg(long = "set", value_name = "KEY=VALUE")]
     set: Vec<String>,
+    /// A parameter of the renderer's `render` operation, as in a manifest case's
+    /// `params:`: key=value (`hpjudge list --ops` names them; e.g. voxels `cast=lanes`, `beam=false`).
+    #[arg(long = "param", value_name = "KEY=VALUE")]
+    param: Vec<String>,
     /// Replay rays from a (N, 9) .npy written by --dump-failing.
     #[arg(long)]
     rays: Option<PathBuf>,
@@ -413,6 +417,7 @@ fn cmd_render(a: &RenderArgs) -> anyhow::Result<Outcome> {
         backend: a.backend.into(),
         precision: a.precision.into(),
         set: &a.set,
+        params: &a.param,
         rays: a.rays.as_deref(),
         grad_from: a.grad_from.as_deref(),
         seed: a.common.seed,

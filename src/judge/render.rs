@@ -7,7 +7,7 @@ use crate::budget::MemBudget;
 use crate::error::{Error, Result};
 use crate::judge::ops::{self, BackendKind, OpCtx};
 use crate::real::Precision;
-use crate::scene::SceneDoc;
+use crate::scene::{parse_pairs, SceneDoc};
 use crate::tensor::{Outputs, Tensor};
 
 /// What `hpjudge render` was asked for.
@@ -18,6 +18,9 @@ pub struct RenderRequest<'a> {
     pub precision: Precision,
     /// `key=value` scene overrides (dotted paths allowed).
     pub set: &'a [String],
+    /// `key=value` parameters of the `render` operation (`--param`), as a
+    /// manifest case's `params:`.
+    pub params: &'a [String],
     /// Rays to replay: an (N, 9) `.npy` written by `--dump-failing`.
     pub rays: Option<&'a Path>,
     /// dL/d rgb (H, W, 3) for renderers with gradients.
@@ -51,6 +54,20 @@ pub fn render(req: &RenderRequest) -> Result<Outputs> {
         .map(|p| Tensor::read_npy_within(p, req.budget))
         .transpose()?;
     let mut params = serde_yaml::Mapping::new();
+    for (k, v) in parse_pairs("--param", req.params)? {
+        let at = format!("--param {k}");
+        if k == "grad_from" {
+            return Err(Error::invalid(
+                at,
+                "give the gradient image with --grad-from",
+            ));
+        }
+        if !op.params.contains(&k.as_str()) {
+            let why = format!("{name} takes no parameter {k:?} (it takes {:?})", op.params);
+            return Err(Error::invalid(at, why));
+        }
+        params.insert(k.into(), v);
+    }
     if let Some(g) = req.grad_from {
         params.insert("grad_from".into(), g.display().to_string().into());
     }

@@ -192,13 +192,19 @@ impl SceneDoc {
 
 /// Parses `key=value` overrides (`--set`), the value as YAML.
 pub fn parse_sets(sets: &[String]) -> Result<Vec<(String, Value)>> {
-    let mut parsed = Vec::with_capacity(sets.len());
-    for s in sets {
+    parse_pairs("--set", sets)
+}
+
+/// Parses the `key=value` arguments of command-line flag `flag`, each value
+/// as YAML; an error names the flag and the argument.
+pub fn parse_pairs(flag: &str, pairs: &[String]) -> Result<Vec<(String, Value)>> {
+    let mut parsed = Vec::with_capacity(pairs.len());
+    for s in pairs {
+        let at = || format!("{flag} {s}");
         let (k, v) = s
             .split_once('=')
-            .ok_or_else(|| Error::invalid(format!("--set {s}"), "expected key=value"))?;
-        let v: Value = serde_yaml::from_str(v)
-            .map_err(|e| Error::invalid(format!("--set {s}"), e.to_string()))?;
+            .ok_or_else(|| Error::invalid(at(), "expected key=value"))?;
+        let v: Value = serde_yaml::from_str(v).map_err(|e| Error::invalid(at(), e.to_string()))?;
         parsed.push((k.trim().to_string(), v));
     }
     Ok(parsed)
