@@ -462,6 +462,11 @@ fn band_cones<F: CastReal>(
             let mut local = *c;
             for i in part {
                 local.add(o[i], d[i]);
+                // Spoilt for good (rays without a shared origin): the
+                // rest would cost a division each for nothing.
+                if !local.ok {
+                    break;
+                }
             }
             *c = local;
         }
