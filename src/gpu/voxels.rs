@@ -188,16 +188,42 @@ fn beam_tile_count(w: u32, h: u32) -> u64 {
     }
 }
 
-/// The beam pre-pass's pipeline where the adapter has f64 and its compiler
-/// takes the kernel; `None` (casts from `near`, a warning) otherwise, so a
-/// backend that cannot build it still casts.
-fn beam_pipeline(ctx: &GpuContext, k: &[(&str, f64)]) -> Option<wgpu::ComputePipeline> {
+/// The beam pre-pass's pipeline for `addressing` (it reads no contours)
+/// where the adapter has f64 and its compiler takes the kernel; `None`
+/// (casts from `near`, a warning) otherwise, so a backend that cannot build
+/// it still casts.
+fn beam_pipeline(ctx: &GpuContext, addressing: GpuAddressing) -> Option<wgpu::ComputePipeline> {
     if !ctx.has_f64() {
         return None;
     }
-    pipeline_with(ctx, "voxel_beam", "beam_nears", k)
+    let k = [("ADDRESSING", addressing as u32 as f64)];
+    pipeline_with(ctx, "voxel_beam", "beam_nears", &k)
         .inspect_err(|e| tracing::warn!("voxel beam pre-pass off: {e}"))
         .ok()
+}
+
+/// The bindings of `beam_nears` (kernels/voxel_beam.wgsl): camera, params,
+/// nodes, and the tiles it writes.
+fn beam_bindings<'a>(
+    (cu, vu, nodes): (&'a wgpu::Buffer, &'a wgpu::Buffer, &'a wgpu::Buffer),
+    tiles: &'a wgpu::Buffer,
+) -> [(u32, &'a wgpu::Buffer); 4] {
+    [(0, cu), (1, vu), (2, nodes), (9, tiles)]
+}
+
+/// The beam pre-pass over `n_tiles` tiles, one invocation a tile.
+fn beam_pass<'a>(
+    pipeline: &'a wgpu::ComputePipeline,
+    buffers: &'a [(u32, &'a wgpu::Buffer)],
+    n_tiles: u64,
+) -> Pass<'a> {
+    Pass {
+        label: "beam_nears",
+        pipeline,
+        buffers,
+        n: n_tiles,
+        wg: 64,
+    }
 }
 
 /// Rays per dispatch: bounded so one batch's results fit a binding.
@@ -254,7 +280,7 @@ impl<'c> GpuOctree<'c> {
             depth,
             camera: pipeline_with(ctx, "voxels", "cast_camera", &k)?,
             given: pipeline_with(ctx, "voxels", "cast_rays", &k)?,
-            beam: beam_pipeline(ctx, &k[..1]),
+            beam: beam_pipeline(ctx, addressing),
         })
     }
 
@@ -330,8 +356,8 @@ impl<'c> GpuOctree<'c> {
             "gpu voxel cast results",
             bytes_for(n, 2 * (32 + if keep_rays { 24 } else { 0 }) + 1),
         )?;
-        let beam_pass = self.beam_for(p);
-        let beam = beam_pass.is_some();
+        let pre_pass = self.beam_for(p);
+        let beam = pre_pass.is_some();
         let vp = VoxParams {
             beam: beam as u32,
             ..self.params(p, n as u32, keep_rays)?
@@ -340,13 +366,14 @@ impl<'c> GpuOctree<'c> {
         let vu = uniform(self.ctx, "voxel params", &vp);
         let hits = storage_out(self.ctx, "voxel hits", n * 32)?;
         let rays = storage_out(self.ctx, "voxel rays", if keep_rays { n * 24 } else { 0 })?;
+        // Without the pre-pass one tile stands bound (the kernel reads none).
         let n_tiles = if beam {
             beam_tile_count(roi.width, roi.height)
         } else {
             1
         };
         let tiles = storage_out(self.ctx, "voxel beam tiles", n_tiles * 8)?;
-        let beam_buffers = [(0, &cu), (1, &vu), (2, &self.nodes), (9, &tiles)];
+        let beam_buffers = beam_bindings((&cu, &vu, &self.nodes), &tiles);
         let cast_buffers = [
             (0, &cu),
             (1, &vu),
@@ -358,14 +385,8 @@ impl<'c> GpuOctree<'c> {
             (8, &tiles),
         ];
         let mut passes = Vec::with_capacity(2);
-        if let Some(bp) = beam_pass {
-            passes.push(Pass {
-                label: "beam_nears",
-                pipeline: bp,
-                buffers: &beam_buffers,
-                n: n_tiles,
-                wg: 64,
-            });
+        if let Some(bp) = pre_pass {
+            passes.push(beam_pass(bp, &beam_buffers, n_tiles));
         }
         passes.push(Pass {
             label: "cast_camera",
@@ -429,13 +450,8 @@ impl<'c> GpuOctree<'c> {
         let vu = uniform(self.ctx, "voxel params", &self.params(p, n as u32, false)?);
         let cu = uniform(self.ctx, "voxel camera", &RayParams::new(cam, gen));
         let tiles = storage_out(self.ctx, "voxel beam tiles", n_tiles * 8)?;
-        let pass = Pass {
-            label: "beam_nears",
-            pipeline: bp,
-            buffers: &[(0, &cu), (1, &vu), (2, &self.nodes), (9, &tiles)],
-            n: n_tiles,
-            wg: 64,
-        };
+        let buffers = beam_bindings((&cu, &vu, &self.nodes), &tiles);
+        let pass = beam_pass(bp, &buffers, n_tiles);
         run_timed(self.ctx, "beam_nears", &[pass], &[&tiles])?.take(0, n_tiles as usize)
     }
 
