@@ -809,7 +809,8 @@ fn render_within_10_s(scene: &str, args: &[&str]) -> Output {
 /// `--param` reaches the render operation as a manifest case's `params:`
 /// would: the voxel cast of 10 incoherent rays writes 10 hits (the camera
 /// would write 8x8), two cast paths write the same bytes, and keys the
-/// operation does not take are refused by name.
+/// operation does not take (or takes only on the other backend) are refused
+/// by name.
 #[test]
 fn render_passes_operation_parameters_and_refuses_unknown_ones() {
     let sphere = "TESTS/scenes/voxel_sphere.yaml";
@@ -838,6 +839,7 @@ fn render_passes_operation_parameters_and_refuses_unknown_ones() {
         ("cast=nope", "cast"),
         ("grad_from=g.npy", "--grad-from"),
         ("beam", "expected key=value"),
+        ("beam=false", "the CPU's path is param cast"),
     ] {
         let o = render(sphere, &[&small[..], &["--param", param]].concat());
         assert_eq!(o.status.code(), Some(2), "{param}: {}", text(&o));

@@ -42,7 +42,7 @@ use crate::voxels::through::{CastPath, Through};
 
 ops! {
     "voxels.render" CpuGpuF32 render ["rays", "count", "seed", "cast", "beam"]
-        "ESVO cast of a voxels scene: hit, t, leaf, normal, image, iters; build_s, bytes_per_voxel, mrays_per_s (param beam: GPU camera rays from the beam pre-pass, default true; the CPU's path is param cast)";
+        "ESVO cast of a voxels scene: hit, t, leaf, normal, image, iters; build_s, bytes_per_voxel, mrays_per_s (CPU: param cast picks the path, default per_ray; GPU: param beam, camera rays from the beam pre-pass, default true; each refused on the other backend)";
     "voxels.referee" Any referee_op ["rays", "count", "seed", "near_margin"]
         "exact f64 Amanatides-Woo DDA over the scene predicate: hit, t, leaf, normal, tie, near_tie, untied, clear";
     "voxels.sphere_bounds" Any sphere_bounds_op ["rays", "count", "seed", "slack_rel"]
@@ -105,6 +105,21 @@ fn render_in<F: CastReal>(
 }
 
 fn render(ctx: &OpCtx) -> Result<Outputs> {
+    // Each backend has its own switch; the other's is refused, not ignored.
+    let (other, why) = if ctx.backend == BackendKind::Cpu {
+        (
+            "beam",
+            "the GPU's switch: the CPU's path is param cast (e.g. cast: beam)",
+        )
+    } else {
+        (
+            "cast",
+            "the CPU's switch: the GPU casts one way, its beam pre-pass is param beam",
+        )
+    };
+    if ctx.param::<serde_yaml::Value>(other)?.is_some() {
+        return Err(ctx.bad(other, why));
+    }
     let sc = load(ctx)?;
     let tree = build(&sc.shape, sc.depth, &ctx.budget)?;
     let (dag, cs) = sc.extras(&tree, &ctx.budget)?;
