@@ -69,7 +69,8 @@ struct VolParams {
     occ_res: u32,
     ray_base: u32,
     ray_count: u32,
-    _pad0: u32,
+    // Always 0 (see `kahan`).
+    opaque_zero: u32,
     _pad1: u32,
     _pad2: u32,
 }
@@ -363,9 +364,16 @@ fn end_unstable(t0: f32, t1: f32, k: u32) -> bool {
 
 // ---- integration state (src/volume/integrate.rs `RayAcc`) ----------------------
 
+// A compensated (Kahan) sum's step: (sum, compensation) plus x. SPIR-V
+// without NoContraction (naga writes none) lets a driver reassociate
+// ((s + y) - s) - y to 0, and NVIDIA's does: on an H200 every log
+// transmittance came back a plain sum (vol_tiny_optical_depth_alpha_f32:
+// opacity 1.06e-6 high, bit for bit an emulation of the sum without its
+// compensation). XOR with a uniform the host keeps 0 hides t = s + y from
+// the compiler.
 fn kahan(sc: vec2<f32>, x: f32) -> vec2<f32> {
     let y = x - sc.y;
-    let t = sc.x + y;
+    let t = bitcast<f32>(bitcast<u32>(sc.x + y) ^ V.opaque_zero);
     return vec2<f32>(t, (t - sc.x) - y);
 }
 

@@ -125,7 +125,10 @@ pub struct VolParams {
     pub occ_res: u32,
     pub ray_base: u32,
     pub ray_count: u32,
-    pub _pad: [u32; 3],
+    /// Always 0: the kernels' Kahan sums XOR with it so that no driver can
+    /// fold their compensation away (kernels/volume.wgsl `kahan`).
+    pub opaque_zero: u32,
+    pub _pad: [u32; 2],
 }
 const _: () = assert!(std::mem::size_of::<VolParams>() == 256);
 
@@ -661,4 +664,22 @@ fn storage_in_rw<T: Pod>(ctx: &GpuContext, label: &str, data: &[T]) -> Result<wg
     let b = storage_out(ctx, label, bytes.len() as u64)?;
     ctx.queue.write_buffer(&b, 0, bytes);
     Ok(b)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::super::kernels::source;
+
+    /// The Kahan step XORs its sum with `opaque_zero`, which the host
+    /// leaves 0: without it NVIDIA's compiler folds the compensation away
+    /// (an H200's vol_tiny opacity 1.06e-6 high), which no CPU adapter
+    /// shows, so the guard is on the text (`VolParams::new` starts from
+    /// zeroed words).
+    #[test]
+    fn kahan_sums_are_hidden_from_reassociation() {
+        let src = source("volume").unwrap();
+        let step = &src[src.find("fn kahan(").unwrap()..];
+        let step = &step[..step.find("\n}").unwrap()];
+        assert!(step.contains("^ V.opaque_zero"), "{step}");
+    }
 }
