@@ -29,7 +29,7 @@ ops! {
     "volume.hash_mlp_grad_fd" Cpu op_mlp_grad_fd ["points", "seed", "nodes"]
         "the same by central differences of the f64 referee";
     "volume.hash_grad" CpuGpuF32 op_grad ["probes", "w_seed", "chain", "reduce", "kink_margin"]
-        "f_diff dhash at seeded parameter probes (dhash_probe), all dhash, dcam; params chain, reduce; on the CPU also dhash_smooth (0 on table values a sample within params.kink_margin of a ReLU kink touches) and counters kink_samples, kink_params";
+        "f_diff dhash at seeded parameter probes (dhash_probe), all dhash, dcam; params chain, reduce; on the CPU also dhash_smooth (0 on table values a sample within params.kink_margin of a ReLU kink touches, on the kinked unit's fan-in and bias, and on every layer before it) and counters kink_samples, kink_params";
     "volume.hash_grad_fd" Cpu op_grad_fd ["probes", "w_seed", "chain", "reduce", "h"]
         "central differences of the f64 fused render loss at the same probes";
     "volume.hash_refusals" Cpu op_refusals ["scenes", "good"]

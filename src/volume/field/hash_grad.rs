@@ -120,6 +120,16 @@ impl<F: Real> HashMlp<F> {
     }
 }
 
+/// A point where the network sits on a ReLU kink ([`HashMlp::near_kink`]):
+/// its corners and the unit (`layer`, `unit`; the density output is the
+/// last layer's unit 0).
+#[derive(Clone, Copy, Debug)]
+pub struct Kink<F> {
+    pub corners: Corners<F>,
+    pub layer: usize,
+    pub unit: usize,
+}
+
 impl<F: Real> HashMlp<F> {
     /// Whether the network sits within `margin` of a ReLU kink at `x`: a
     /// hidden pre-activation (or, with `relu` density, the density output)
@@ -129,9 +139,10 @@ impl<F: Real> HashMlp<F> {
     /// z = +1.165e-6 (6.7e-7 of its terms) below 0 on one sample of
     /// vol_hash_init.yaml and so dropped that sample's whole gradient
     /// through the unit from every table value it touches. Returns the
-    /// point's corners (the table rows whose gradients the kink moves).
+    /// point's corners (the table rows whose gradients the kink moves) and
+    /// the unit (whose fan-in and bias gradients move too).
     #[allow(clippy::needless_range_loop)] // index loops mirror the forward's order
-    pub fn near_kink(&self, x: [F; 3], margin: F) -> Option<Corners<F>> {
+    pub fn near_kink(&self, x: [F; 3], margin: F) -> Option<Kink<F>> {
         let c = self.corners(x);
         let mut h = [F::zero(); MAX_WIDTH];
         self.encode(&c, &mut h);
@@ -157,7 +168,11 @@ impl<F: Real> HashMlp<F> {
                     mag += (*w * a).abs();
                 }
                 if z[q][o].abs() <= margin * mag {
-                    return Some(c);
+                    return Some(Kink {
+                        corners: c,
+                        layer: q,
+                        unit: o,
+                    });
                 }
             }
         }
@@ -197,8 +212,9 @@ mod tests {
         m.encode(&m.corners(x), &mut h);
         m.mlp(&h, &mut z);
         m.layers[0].b[3] -= z[0][3];
-        let c = m.near_kink(x, 1e-6).expect("unit 3 sits on its kink");
-        assert_eq!(c.rows, m.corners(x).rows);
+        let k = m.near_kink(x, 1e-6).expect("unit 3 sits on its kink");
+        assert_eq!(k.corners.rows, m.corners(x).rows);
+        assert_eq!((k.layer, k.unit), (0, 3));
         // Unit 3 moved 1e-3 of its terms' magnitudes off the kink: not flagged.
         m.layers[0].b[3] += 1e-3;
         assert!(m.near_kink(x, 1e-6).is_none());
