@@ -28,7 +28,9 @@
 #   info perf:voxels_gpu_menger_d10_1080p perf:voxels_gpu_sphere_d10 cases:voxel_gpu cases:vol_tiny cases:gpu_vol_hash
 # Perf and info output lands in $OUT/results.tar.gz; the log is $OUT/log.txt; the last
 # lines printed are a summary (suite verdicts, perf metrics named by
-# HP_PERF_KEYS, a regex; default every metric).
+# HP_PERF_KEYS, a regex; default every metric). HP_DEADLINE_S (seconds from
+# the script's start) bounds the run: a stage that would start later is
+# skipped, one running then is stopped, and what came before still comes back.
 set -uo pipefail
 cd "$(dirname "$0")/.."
 : "${OUT:=/tmp/hp-device-out}"
@@ -47,14 +49,23 @@ hpj=.dev/hpjudge
 nvidia-smi --query-gpu=name,driver_version,clocks.sm,clocks.mem,temperature.gpu --format=csv
 
 summary=()
+start=$(date +%s)
+deadline=${HP_DEADLINE_S:-100000}
 for stage in "$@"; do
     t0=$(date +%s.%N)
+    rem=$((deadline - ($(date +%s) - start)))
+    if [ "$rem" -le 5 ]; then
+        echo "== stage $stage: skipped (HP_DEADLINE_S=$deadline reached)"
+        summary+=("$stage: skipped at the deadline")
+        continue
+    fi
+    tmo=(timeout "$rem")
     case "$stage" in
         info)
-            "$hpj" info | tee "$res/info.txt"
+            "${tmo[@]}" "$hpj" info | tee "$res/info.txt"
             ;;
         suite)
-            "$hpj" run TESTS/manifest.yaml --out "$res/suite" --require-gpu | tee "$res/suite.log"
+            "${tmo[@]}" "$hpj" run TESTS/manifest.yaml --out "$res/suite" --require-gpu | tee "$res/suite.log"
             summary+=("suite: $(tail -n 1 "$res/suite.log")")
             grep -E "FAIL|ERROR" "$res/suite.log" | head -40
             ;;
@@ -65,7 +76,7 @@ for stage in "$@"; do
             nvidia-smi --query-gpu=timestamp,clocks.sm,utilization.gpu --format=csv,noheader,nounits \
                 -lms 100 >"$res/clocks_$f.csv" 2>/dev/null &
             smi=$!
-            "$hpj" perf --filter "$f" --out "$res/perf_$f" --json >"$res/perf_$f.json"
+            "${tmo[@]}" "$hpj" perf --filter "$f" --out "$res/perf_$f" --json >"$res/perf_$f.json"
             kill "$smi" 2>/dev/null
             python3 - "$res/clocks_$f.csv" <<'EOF' | tee -a "$res/perf_summary.txt"
 import csv, sys
@@ -94,7 +105,7 @@ EOF
             ;;
         cases:*)
             f="${stage#cases:}"
-            "$hpj" run TESTS/manifest.yaml --backend gpu --filter "$f" --dump-failing \
+            "${tmo[@]}" "$hpj" run TESTS/manifest.yaml --backend gpu --filter "$f" --dump-failing \
                 --out "/tmp/hp-cases/$f" --require-gpu | tee "$res/cases_$f.log"
             summary+=("cases $f: $(tail -n 1 "$res/cases_$f.log")")
             grep -E "^(FAIL|ERROR|TIMEOUT)" "$res/cases_$f.log" | head -40
@@ -106,7 +117,7 @@ EOF
             fi
             ;;
         render)
-            "$hpj" render TESTS/scenes/cornell_box.yaml --backend gpu --set spp=64 --out "$res/render" \
+            "${tmo[@]}" "$hpj" render TESTS/scenes/cornell_box.yaml --backend gpu --set spp=64 --out "$res/render" \
                 2>&1 | tail -n 5
             ;;
         *)
