@@ -6,6 +6,10 @@
 //! interval just touch, an f32 cast with fused multiply-adds (the H100) and
 //! one without (the CPU, lavapipe) can decide that test differently.
 //! f64, written from the box and slab intervals; it never calls the cast.
+//! The same box intervals give the other parity ties that need a box
+//! rather than the cube referee's finest voxel: a voxel's entry time
+//! ([`voxel_entry`]) and an LOD cut's box entered through an edge
+//! ([`box_face_tie`]).
 
 use super::contour::slab_interval;
 
@@ -93,6 +97,32 @@ pub fn slab_tie(
     (lower - upper).abs() <= lower_err + upper_err
 }
 
+/// Whether `o + t d` enters the box of the level-`level` voxel that holds
+/// the depth-`depth` voxel `voxel` through an edge or corner within
+/// rounding: the entry times of the faces of both `axes` (the faces two
+/// casts' normals name) are within `slack / |d_a|` of the box's entry time.
+/// The cube referee judges the finest solid voxel on the ray; an LOD cut
+/// stops at a coarser box, whose edges that voxel need not share (an H200
+/// cut at a level-6 box entered 3.2e-7 apart in t through its y and z
+/// faces, where the referee's voxel lay beyond the box, no tie).
+pub fn box_face_tie(
+    (depth, level): (u32, u32),
+    voxel: [u32; 3],
+    o: [f64; 3],
+    d: [f64; 3],
+    axes: [usize; 2],
+    slack: f64,
+) -> bool {
+    let level = level.min(depth);
+    let s = 2.0 / (1u64 << level) as f64;
+    let lo = voxel.map(|i| -1.0 + (i >> (depth - level)) as f64 * s);
+    let ((te, _), _) = box_interval(lo, s, o, d);
+    axes.iter().all(|&a| {
+        let x = if d[a] > 0.0 { lo[a] } else { lo[a] + s };
+        d[a] != 0.0 && te - (x - o[a]) / d[a] <= slack / d[a].abs()
+    })
+}
+
 #[cfg(test)]
 /// A ray that leaves voxel `[3, 3, 3]` (depth 3, edge 0.25) through its
 /// +x face just where it enters the slab of a contour tilted in x and
@@ -138,5 +168,24 @@ mod tests {
         // Parallel to the x faces and outside them: the voxel is missed.
         let (o, d) = ([0.5, -0.2, -0.1], [0.0, 1.0, 0.0]);
         assert!(!slab_tie(v, 3, [3, 3, 3], o, d, cube, slack), "box missed");
+    }
+
+    #[test]
+    fn an_lod_box_entered_at_its_edge_is_a_normal_tie_at_its_level_only() {
+        // Through (-1, -1, -0.9) at t = 2, slope sqrt 2 in x-y: the level-1
+        // box [-1, 0]^3 is entered on its edge x = y = -1; its depth-3 voxel
+        // [1, 1, 0] ([-0.75, -0.5]^2 in x-y) through the x face alone, the y
+        // face 0.13 earlier in t.
+        let (a, b) = (1.0 / 3f64.sqrt(), (2.0 / 3.0f64).sqrt());
+        let d = [a, b, 0.0];
+        let o = [-1.0 - 2.0 * a, -1.0 - 2.0 * b, -0.9];
+        let slack = 2f64.powi(-22);
+        assert!(box_face_tie((3, 1), [1, 1, 0], o, d, [0, 1], slack));
+        assert!(!box_face_tie((3, 3), [1, 1, 0], o, d, [0, 1], slack));
+        assert!(box_face_tie((3, 3), [1, 1, 0], o, d, [0, 0], slack));
+        assert!(
+            !box_face_tie((3, 1), [1, 1, 0], o, d, [0, 2], slack),
+            "z face"
+        );
     }
 }
