@@ -21,7 +21,7 @@ use super::octree::Octree;
 use super::outputs::{attr_metrics, build_metrics, mesh_metrics, put_hits};
 use super::referee::referee;
 use super::referee_bounds::ball_entry;
-use super::referee_contour::{box_face_tie, slab_tie, voxel_entry};
+use super::referee_contour::{box_face_tie, slab_entry_t_tie, slab_tie, voxel_entry};
 use super::referee_mesh::{check_triangles, check_voxels};
 use super::render::{attr_image, cast_all, cast_all_contours, VoxelHits};
 use super::shape::Shape;
@@ -122,7 +122,9 @@ pub fn contour_error<F: CastReal>(
 /// two sides may differ by an f32 ulp in a few tiles, and so the iteration
 /// counts of their rays): the GPU's hits, the CPU's as `cpu_*`, `excused` /
 /// `not_excused` (see [`CastPair::leaf_ties`]), `normal_not_excused` (also
-/// excusing normal ties, see [`CastPair::normal_ties`]), `identical_frac`,
+/// excusing normal ties, see [`CastPair::normal_ties`]), `t_not_excused`
+/// (also excusing t at normal ties and at contour slab entries, see
+/// [`CastPair::t_not_excused`]), `identical_frac`,
 /// `beam_ran` (1 when the GPU's camera rays started at its beam starts) and
 /// `shader_f64` (1 when the adapter can run the beam pre-pass; scalars and
 /// metrics), counters `rays`,
@@ -195,9 +197,14 @@ pub fn gpu_parity(
     let normal_not_excused: Vec<u8> = (excused.iter().zip(&normal_ok))
         .map(|(&x, &y)| 1 - (x | y))
         .collect();
+    let t_not_excused = pair.t_not_excused(margin, &excused, &normal_ok);
     out.tensor(
         "normal_not_excused",
         Tensor::from_shape_vec(&b.shape, normal_not_excused)?,
+    );
+    out.tensor(
+        "t_not_excused",
+        Tensor::from_shape_vec(&b.shape, t_not_excused)?,
     );
     out.tensor("excused", Tensor::from_shape_vec(&b.shape, excused)?);
     out.tensor(
@@ -368,6 +375,43 @@ impl CastPair<'_> {
         let v = g.leaf[i].map(|x| x as u32);
         box_face_tie((self.scene.1, self.gpu_level[i]), v, o, d, [a, b], slack)
     }
+
+    /// Per ray: 1 where the two t's are judged, else 0. Not where the
+    /// leaves or the normals differ excused: the two t's are then of
+    /// different voxels or faces (an H200 against the CPU on incoherent
+    /// Menger rays at excused normal ties: 3.0e-6 and 1.9e-5 apart
+    /// relative, over `voxel_t_f32`); nor at a contour slab entry within
+    /// the plane's rounding ([`Self::slab_t_tie`]). `excused` and
+    /// `normal_ok` are [`Self::leaf_ties`]' and [`Self::normal_ties`]'.
+    fn t_not_excused(&self, margin: f64, excused: &[u8], normal_ok: &[u8]) -> Vec<u8> {
+        (0..excused.len())
+            .map(|i| 1 - (excused[i] | normal_ok[i] | self.slab_t_tie(i, margin) as u8))
+            .collect()
+    }
+
+    /// Whether ray `i` of a contour cast, both casts hitting the same leaf
+    /// through the same face, has its two t's at the leaf's slab entry
+    /// within the slab plane's rounding: `margin` plus [`TIE_REL`] of
+    /// `|o| + t |d|`, over `|n . d|` ([`slab_entry_t_tie`]). An H200's worst
+    /// over 32,073 slab-entry rays of the 512^2 sphere, `|dt| |n . d| /
+    /// (|o| + t |d|)`, was 1.13e-7, an eighth of `TIE_REL`.
+    fn slab_t_tie(&self, i: usize, margin: f64) -> bool {
+        let (g, c) = (self.gpu, self.cpu);
+        let Some((tree, cs)) = self.contours else {
+            return false;
+        };
+        if g.hit[i] == 0 || g.leaf[i] != c.leaf[i] || g.normal[i] != c.normal[i] {
+            return false;
+        }
+        let (o, d) = (self.o[i].map(|x| x as f64), self.d[i].map(|x| x as f64));
+        let v = g.leaf[i].map(|x| x as u32);
+        let code = (tree.attr_index(v))
+            .and_then(|k| cs.get(k as usize).copied())
+            .unwrap_or(0);
+        let slack = margin + self.rel_slack(i, c.t[i] as f64);
+        let dt = (g.t[i] as f64 - c.t[i] as f64).abs();
+        slab_entry_t_tie(code, self.scene.1, v, o, d, slack, dt)
+    }
 }
 
 /// Plain and DXT attributes of `tree`'s leaves built from `shape`'s normals
@@ -478,6 +522,133 @@ mod tests {
         let no_lod = CastParams::default();
         let cubes = CastPair { p: &no_lod, ..pair };
         assert_eq!(cubes.normal_ties(2f64.powi(-22)), (vec![0], 1));
+    }
+
+    #[test]
+    fn t_differences_are_excused_at_excused_normal_ties_only() {
+        // The H200's rays 1230 and 14356 of
+        // voxel_gpu_menger_incoherent_parity: same leaf, the two casts
+        // naming faces that are entered within the referee's margin, each t
+        // from its own face, 3.0e-6 and 1.9e-5 apart relative. With the
+        // normals agreeing, the same t's are judged.
+        let shape = Shape::Menger { level: 6 };
+        let o = [
+            [0.187_847_85, -0.102_168_44, -0.741_204_5],
+            [-0.534_753_1, -0.506_554_6, 0.735_301],
+        ];
+        let d = [
+            [0.595_506_1, 0.777_583_6, 0.201_832_3],
+            [0.022_908_41, -0.268_382_52, -0.963_04],
+        ];
+        let mut gpu = hits(
+            &[[0.0, 0.0, -1.0], [-1.0, 0.0, 0.0]],
+            &[0.130_607_2, 0.323_432_92],
+        );
+        let mut cpu = hits(
+            &[[-1.0, 0.0, 0.0], [0.0, 0.0, 1.0]],
+            &[0.130_606_82, 0.323_426_75],
+        );
+        gpu.leaf = vec![[648, 511, 146], [242, 208, 728]];
+        cpu.leaf.clone_from(&gpu.leaf);
+        let p = CastParams::default();
+        let pair = CastPair {
+            gpu: &gpu,
+            cpu: &cpu,
+            o: &o,
+            d: &d,
+            scene: (&shape, 10),
+            gpu_level: &[],
+            contours: None,
+            p: &p,
+            case: "test",
+        };
+        let margin = 2f64.powi(-22);
+        let (excused, _) = pair.leaf_ties(margin);
+        let (normal_ok, _) = pair.normal_ties(margin);
+        assert_eq!((&excused[..], &normal_ok[..]), (&[0, 0][..], &[1, 1][..]));
+        assert_eq!(pair.t_not_excused(margin, &excused, &normal_ok), [0, 0]);
+        let t_apart = VoxelHits {
+            t: cpu.t.clone(),
+            ..gpu.clone()
+        };
+        let agreed = CastPair {
+            cpu: &t_apart,
+            ..pair
+        };
+        let (normal_ok, _) = agreed.normal_ties(margin);
+        assert_eq!(agreed.t_not_excused(margin, &excused, &normal_ok), [1, 1]);
+    }
+
+    #[test]
+    fn contour_t_differences_are_excused_at_grazing_slab_entries_only() {
+        // The H200's rays 175245, 179348, 204538 and 204541 of
+        // voxel_gpu_contour_sphere_parity (512^2): same leaf, same face,
+        // t at the leaf's slab entry with |n . d| 0.046, 0.071, 0.012 and
+        // 0.028, 1.3e-6 to 2.4e-6 apart relative. The cube cast has no
+        // slab, and t 100 times as far apart is past the plane's rounding.
+        use crate::budget::MemBudget;
+        use crate::voxels::contour::fit_sphere;
+        use crate::voxels::octree::build;
+        let shape = Shape::Sphere { radius: 0.8 };
+        let tree = build(&shape, 8, &MemBudget::fixed(1 << 26)).unwrap();
+        let leaf = [
+            [97, 85, 215],
+            [105, 82, 216],
+            [164, 47, 179],
+            [167, 49, 180],
+        ];
+        let mut cs = vec![0; tree.leaves().len()];
+        for v in leaf {
+            cs[tree.attr_index(v).unwrap() as usize] = fit_sphere(0.8, 8, v).unwrap();
+        }
+        let o = [[2.0, 1.5, 2.5]; 4];
+        let d = [
+            [-0.655_812_1, -0.536_724_4, -0.530_883_55],
+            [-0.643_940_03, -0.548_214_3, -0.533_668_64],
+            [-0.497_834_6, -0.618_052_66, -0.608_417_33],
+            [-0.494_157_28, -0.618_071_1, -0.611_389_16],
+        ];
+        let normal = [
+            [0.0, 0.0, 1.0],
+            [0.0, 0.0, 1.0],
+            [0.0, 0.0, 1.0],
+            [1.0, 0.0, 0.0],
+        ];
+        let cpu_t = [3.416_347_7, 3.381_811_9, 3.448_790_8, 3.419_73];
+        let gpu_t = [3.416_343_2, 3.381_816_4, 3.448_799_1, 3.419_735_7];
+        let mut gpu = hits(&normal, &gpu_t);
+        gpu.leaf = leaf.map(|v| v.map(|x| x as i32)).to_vec();
+        let cpu = VoxelHits {
+            t: cpu_t.to_vec(),
+            ..gpu.clone()
+        };
+        let far = VoxelHits {
+            t: (0..4)
+                .map(|i| cpu_t[i] + 100.0 * (gpu_t[i] - cpu_t[i]))
+                .collect(),
+            ..gpu.clone()
+        };
+        let p = CastParams::default();
+        let pair = CastPair {
+            gpu: &gpu,
+            cpu: &cpu,
+            o: &o,
+            d: &d,
+            scene: (&shape, 8),
+            gpu_level: &[],
+            contours: Some((&tree, &cs)),
+            p: &p,
+            case: "test",
+        };
+        let (margin, none) = (2f64.powi(-22), [0; 4]);
+        assert_eq!(pair.t_not_excused(margin, &none, &none), [0; 4]);
+        let cubes = CastPair {
+            contours: None,
+            ..pair
+        };
+        assert_eq!(cubes.t_not_excused(margin, &none, &none), [1; 4]);
+        let apart = CastPair { gpu: &far, ..pair };
+        assert_eq!(apart.t_not_excused(margin, &none, &none), [1; 4]);
     }
 
     #[test]

@@ -56,7 +56,7 @@ ops! {
     "voxels.contour_error" Cpu contour_op []
         "t error of cubes vs contours against the analytic sphere (max, p99); per ray box_excess and slab_excess of contour hits";
     "voxels.gpu_parity" GpuF32 gpu_parity ["rays", "count", "seed", "ulp_margin", "beam"]
-        "GPU vs CPU f32 voxel cast on the same rays: both outputs (and with scene attributes both attribute images, image / cpu_image), excused (referee ties / one-ulp near ties where leaves differ, and in contour casts slab ties at the leaf one cast passed), normal_not_excused (also normal ties where normals differ)";
+        "GPU vs CPU f32 voxel cast on the same rays: both outputs (and with scene attributes both attribute images, image / cpu_image), excused (referee ties / one-ulp near ties where leaves differ, and in contour casts slab ties at the leaf one cast passed), normal_not_excused (also normal ties where normals differ), t_not_excused (also t at normal ties and at contour slab entries within the plane's rounding)";
     "voxels.gpu_bench" GpuF32 gpu_bench ["count", "size", "seed"]
         "CPU per-ray, CPU packet and GPU casts of octree and DAG in one run, coherent (size^2 camera; size 0: the scene's width x height) and incoherent (count): Mrays/CPU-s, GPU Mrays/s (submit to readback, and kernels alone on the GPU clock where the adapter has timestamps), packet speedup, mean iterations, node bytes per ray";
     "voxels.attributes" Cpu attributes_op []
