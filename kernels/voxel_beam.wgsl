@@ -1,6 +1,6 @@
 // voxel_beam.wgsl: the beam pre-pass of the GPU camera cast (Laine & Karras
-// 2010, "beam optimization", made conservative), one workgroup of 64 per
-// 8x8 pixel tile of the region, in f64 (the adapter's SHADER_F64; the host runs
+// 2010, "beam optimization", made conservative), one invocation per 8x8
+// pixel tile of the region, in f64 (the adapter's SHADER_F64; the host runs
 // the cast from `near` without it). Extends voxels.wgsl (its parameters,
 // nodes and `BeamTile`); entry `cast_camera` there reads the result.
 // CPU twin: src/voxels/beam.rs `beam_nears` (one tile: `band_cones`'
@@ -37,15 +37,6 @@ const NO_BOX: f64 = 1e300lf;
 const BEAM_STACK: u32 = 155u;
 
 @group(0) @binding(9) var<storage, read_write> beam_out: array<BeamTile>;
-
-// One tile's workgroup (`beam_nears`): lane i's ray terms for the cone
-// (`flag` 0: no ray), the cone, whether the tile
-// walks, the best distance found so far (`tile_bound`) and each lane's.
-var<workgroup> lane_terms: array<RayTerms, 64>;
-var<workgroup> tile_cone: Cone;
-var<workgroup> tile_walks: u32;
-var<workgroup> bound_bits: atomic<u32>;
-var<workgroup> lane_best: array<f64, 64>;
 
 struct Cone {
     o: vec3<f64>,
@@ -106,42 +97,22 @@ fn child_slot(slot: u32, desc: u32, c: u32) -> u32 {
     return slot + ofs + countOneBits((desc << (7u - c)) & 0x7Fu);
 }
 
-// An upper bound of `x` >= 0 as f32 bits (for `tile_bound`).
-fn f32_bits_above(x: f64) -> u32 {
-    let f = f32(x);
-    return bitcast<u32>(f) + select(0u, 1u, f64(f) < x);
-}
-
-// The best distance any lane of the tile has found so far, rounded up to an
-// f32: a box at least this far cannot lower the tile's start, so every lane
-// prunes by it (pruning never changes the start: see `start_distance`).
-fn tile_bound() -> f64 {
-    return f64(bitcast<f32>(atomicLoad(&bound_bits)));
-}
-
 // The squared distance from the cone's origin to the nearest non-empty node
-// box that meets the cone, below the node `slot` (corner and level `kl`,
-// at squared distance `d2`), `NO_BOX` for none; with `pooled`, offers each
-// better distance to the tile's lanes and prunes by theirs (`bound_bits`).
-// CPU twin: src/voxels/beam.rs `start_distance_scalar` (from the root).
-// The start is the least distance over the boxes the walk stops at (leaves,
-// boxes at the depth, boxes under the cone's width), a set that does not
-// depend on the order of the walk, and pruning drops only boxes no nearer
-// than a box already found; so a tile's lanes, each walking its share of
-// the tree (`lane_start_distance`) and pruning by each other's finds, agree
-// with the CPU's one walk bit for bit.
-fn start_distance(k: Cone, d2_0: f64, slot0: u32, kl0: vec4<u32>, pooled: bool) -> f64 {
+// box that meets the cone, `NO_BOX` for none.
+// CPU twin: src/voxels/beam.rs `start_distance_scalar`.
+fn start_distance(k: Cone) -> f64 {
     let tan2 = k.tan_half * k.tan_half;
     var best = NO_BOX;
     // An entry: squared distance, slot, and the node's low corner as whole
     // multiples of its edge 2^(1 - level) (xyz) with the level (w): the
-    // CPU's f64 corner exactly (dyadic), in 28 bytes instead of 48.
+    // CPU's f64 corner exactly (dyadic), in 28 bytes instead of 48 (the
+    // stack's size is most of the walk's cost on a CPU driver).
     var st_d2: array<f64, BEAM_STACK>;
     var st_slot: array<u32, BEAM_STACK>;
     var st_kl: array<vec4<u32>, BEAM_STACK>;
-    st_d2[0] = d2_0;
-    st_slot[0] = slot0;
-    st_kl[0] = kl0;
+    st_d2[0] = 0.0lf;
+    st_slot[0] = 0u;
+    st_kl[0] = vec4<u32>(0u);
     var sp = 1u;
     while (sp > 0u) {
         sp -= 1u;
@@ -149,11 +120,7 @@ fn start_distance(k: Cone, d2_0: f64, slot0: u32, kl0: vec4<u32>, pooled: bool) 
         let slot = st_slot[sp];
         let kl = st_kl[sp];
         let level = kl.w;
-        var bound = best;
-        if (pooled) {
-            bound = less64(best, tile_bound());
-        }
-        if (dist2 >= bound) {
+        if (dist2 >= best) {
             continue;
         }
         let desc = nodes[2u * slot];
@@ -173,7 +140,7 @@ fn start_distance(k: Cone, d2_0: f64, slot0: u32, kl0: vec4<u32>, pooled: bool) 
             let wlo = lo + vec3<f64>(cb) * size;
             let whi = wlo + size;
             let d2 = box_distance2(k.o, wlo, whi);
-            if (d2 >= less64(best, bound)) {
+            if (d2 >= best) {
                 continue;
             }
             let v = wlo + 0.5lf * size - k.o;
@@ -183,9 +150,6 @@ fn start_distance(k: Cone, d2_0: f64, slot0: u32, kl0: vec4<u32>, pooled: bool) 
             let fine = size * size <= 4.0lf * d2 * tan2;
             if (last || ((nonleaf >> c) & 1u) == 0u || fine) {
                 best = d2;
-                if (pooled) {
-                    atomicMin(&bound_bits, f32_bits_above(d2));
-                }
             } else if (sp < BEAM_STACK) {
                 // Pushed among the entries above base, nearest on top
                 // (CPU twin: `push_nearest_last`).
@@ -203,257 +167,90 @@ fn start_distance(k: Cone, d2_0: f64, slot0: u32, kl0: vec4<u32>, pooled: bool) 
             } else {
                 // No room (not reached with depth <= 22): stop here, nearer.
                 best = d2;
-                if (pooled) {
-                    atomicMin(&bound_bits, f32_bits_above(d2));
-                }
             }
         }
     }
     return best;
 }
 
-// Lane `lane`'s share of the tile's walk: the subtree of the root's child
-// lane / 8's child lane % 8, by the same tests as `start_distance`. Where
-// the root's child is itself a box the walk stops at, lane % 8 = 0 answers
-// it and its other lanes nothing; `NO_BOX` for none.
-fn lane_start_distance(k: Cone, lane: u32) -> f64 {
-    let tan2 = k.tan_half * k.tan_half;
-    var slot = 0u;
-    var kl = vec4<u32>(0u);
-    var d2 = 0.0lf;
-    for (var step = 0u; step < 2u; step++) {
-        let c = select(lane & 7u, lane >> 3u, step == 0u);
-        let desc = nodes[2u * slot];
-        if (((desc >> (8u + c)) & 1u) == 0u) {
-            return NO_BOX;
-        }
-        let nonleaf = desc & 0xFFu;
-        let level = kl.w;
-        let size = f64(exp2i(-i32(level)));
-        let lo = vec3<f64>(kl.xyz) * (2.0lf * size) - 1.0lf;
-        let cb = vec3<u32>(c, c >> 1u, c >> 2u) & vec3<u32>(1u);
-        let wlo = lo + vec3<f64>(cb) * size;
-        d2 = box_distance2(k.o, wlo, wlo + size);
-        if (!meets_sphere(k, wlo + 0.5lf * size - k.o, 0.5lf * SQRT3 * size)) {
-            return NO_BOX;
-        }
-        let last = nonleaf == 0u || level + 1u >= V.depth;
-        let fine = size * size <= 4.0lf * d2 * tan2;
-        if (last || ((nonleaf >> c) & 1u) == 0u || fine) {
-            return select(NO_BOX, d2, step == 1u || (lane & 7u) == 0u);
-        }
-        slot = child_slot(slot, desc, c);
-        kl = vec4<u32>(2u * kl.xyz + cb, level + 1u);
-    }
-    return start_distance(k, d2, slot, kl, true);
-}
-
-// One ray's terms of the tile's cone (ConeAcc::add): cos^2 of its angle to
-// the axis, |d| per axis, |d|^2, and `flag` 1 (it fits a cone) or 2 (it
-// spoils it: another origin, a direction at or past 90 degrees, zero).
-struct RayTerms {
-    c2: f64,
-    dabs: vec3<f64>,
-    l2: f64,
-    flag: u32,
-}
-
-fn ray_terms(r: Ray, o: vec3<f32>, axis: vec3<f64>) -> RayTerms {
-    let d = vec3<f64>(r.d);
-    let c = dot64(d, axis);
-    let l2 = dot64(d, d);
-    let ok = all(r.o == o) && c > 0.0lf && l2 > 0.0lf;
-    return RayTerms(c * c / l2, abs(d), l2, select(2u, 1u, ok));
-}
-
-// ConeAcc: the running fold of a tile's `RayTerms` in memory order.
-struct ConeAcc {
-    ok: bool,
-    cos2_min: f64,
-    dmin: vec3<f64>,
-    len2_max: f64,
-}
-
-fn cone_acc() -> ConeAcc {
-    return ConeAcc(true, 1.0lf, vec3<f64>(NO_BOX), 0.0lf);
-}
-
-fn cone_add(a: ConeAcc, t: RayTerms) -> ConeAcc {
-    let dmin = vec3<f64>(less64(t.dabs.x, a.dmin.x), less64(t.dabs.y, a.dmin.y), less64(t.dabs.z, a.dmin.z));
-    return ConeAcc(a.ok && t.flag == 1u, less64(t.c2, a.cos2_min), dmin, -less64(-t.l2, -a.len2_max));
-}
-
-// ConeAcc::finish: the cone about `axis` from `o` holding the tile's rays,
-// and whether the tile walks (its rays fit a cone no wider than
-// `COS_MAX_HALF_ANGLE`).
-fn cone_finish(a: ConeAcc, o: vec3<f32>, axis: vec3<f64>) -> Cone {
-    let c2 = clamp(a.cos2_min, 0.0lf, 1.0lf);
-    let cc = sqrt(c2);
-    let ss = sqrt(1.0lf - c2);
-    let cos_half = cc - ss * WIDEN;
-    let sin_half = ss + cc * WIDEN;
-    var k: Cone;
-    k.o = vec3<f64>(o);
-    k.axis = axis;
-    k.time_error = plane_time_error(o, a.dmin);
-    k.len_max = sqrt(a.len2_max);
-    k.slack = 2.0lf * k.time_error * k.len_max;
-    k.cos2_half = cos_half * cos_half;
-    k.sin_half = sin_half;
-    k.tan_half = sin_half / cos_half;
-    return k;
-}
-
-fn cone_walks(a: ConeAcc) -> bool {
-    let c2 = clamp(a.cos2_min, 0.0lf, 1.0lf);
-    let cos_half = sqrt(c2) - sqrt(1.0lf - c2) * WIDEN;
-    return a.ok && a.len2_max != 0.0lf && cos_half >= COS_MAX_HALF_ANGLE;
-}
-
-// tile_near: the tile's entry from the walk's `best` (`walks` false: from `near`).
-fn tile_out(walks: bool, k: Cone, best: f64) -> BeamTile {
-    var out: BeamTile;
-    out.near = V.near;
-    out.meets = 1u;
-    if (walks) {
-        if (best >= NO_BOX) {
-            out.meets = 0u;
-        } else {
-            let s = sqrt(best) / k.len_max * (1.0lf - MARGIN) - k.time_error;
-            if (s > f64(V.near)) {
-                out.near = f32(s);
-            }
-        }
-    }
-    return out;
-}
-
-// A tile's corners and axis: pixels [x0, x1) x [y0, y1) of the region, the
-// first ray's origin, the unit sum of the first and last directions, and
-// whether it has one (no LOD cut, a nonzero sum).
-struct TileFrame {
-    x0: u32,
-    y0: u32,
-    x1: u32,
-    y1: u32,
-    // The tile's width in the region's layout (`beam_tile_size`).
-    sx: u32,
-    o: vec3<f32>,
-    axis: vec3<f64>,
-    coned: bool,
-}
-
-fn tile_frame(t: u32) -> TileFrame {
+// One tile's start (`beam_tile_size`: 8x8, or 64x1 in a region one row
+// high): the tile's rays (the f32 camera rays `cast_camera` casts) bound by a cone about the sum of its first and last directions, the
+// walk, the pull-back. `meets` 0: no non-empty box meets the cone (every ray
+// a miss); a tile without a cone (rays from differing origins, one too wide,
+// an LOD cut) starts at `V.near`.
+// CPU twin: src/voxels/beam.rs `beam_nears` (one tile).
+@compute @workgroup_size(64)
+fn beam_nears(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
     let w = C.roi_w;
     let h = V.n / w;
     let s = beam_tile_size(h);
     let tiles_x = beam_tiles_x(w, h);
-    var f: TileFrame;
-    f.x0 = (t % tiles_x) * s.x;
-    f.y0 = (t / tiles_x) * s.y;
-    f.x1 = min(f.x0 + s.x, w);
-    f.y1 = min(f.y0 + s.y, h);
-    f.sx = s.x;
-    let first = camera_ray(C, f.y0 * w + f.x0);
-    let last = camera_ray(C, (f.y1 - 1u) * w + f.x1 - 1u);
+    let t = linear_id(gid, nwg, 64u);
+    if (t >= tiles_x * ((h + s.y - 1u) / s.y)) {
+        return;
+    }
+    let x0 = (t % tiles_x) * s.x;
+    let y0 = (t / tiles_x) * s.y;
+    let x1 = min(x0 + s.x, w);
+    let y1 = min(y0 + s.y, h);
+    var out: BeamTile;
+    out.near = V.near;
+    out.meets = 1u;
+    let first = camera_ray(C, y0 * w + x0);
+    let last = camera_ray(C, (y1 - 1u) * w + x1 - 1u);
     // ConeAcc::new: the axis made unit.
     let ax = vec3<f64>(first.d) + vec3<f64>(last.d);
     let al = sqrt(dot64(ax, ax));
-    f.o = first.o;
-    f.axis = ax / al;
-    f.coned = V.lod_on != 1u && al > 0.0lf;
-    return f;
-}
-
-fn tile_count() -> u32 {
-    let h = V.n / C.roi_w;
-    return beam_tiles_x(C.roi_w, h) * ((h + beam_tile_size(h).y - 1u) / beam_tile_size(h).y);
-}
-
-// One tile's start (`beam_tile_size`: 8x8, or 64x1 in a region one row
-// high), one workgroup a tile, lane i holding the tile's ray i (memory
-// order): the tile's rays (the f32 camera rays `cast_camera` casts) bound by
-// a cone about the sum of its first and last directions, the walk shared
-// among the lanes (`lane_start_distance`), the pull-back. `meets` 0: no
-// non-empty box meets the cone (every ray a miss); a tile without a cone
-// (rays from differing origins, one too wide, an LOD cut) starts at
-// `V.near`. For GPUs: one invocation walking a tile alone
-// (`beam_nears_by_thread`) left an H200 one thread a tile, each waiting on
-// its own memory, and the pre-pass 2.6-2.8x slower than the cast it was to
-// shorten (docs/PERF.md).
-// CPU twin: src/voxels/beam.rs `beam_nears` (one tile).
-@compute @workgroup_size(64)
-fn beam_nears(
-    @builtin(workgroup_id) wid: vec3<u32>,
-    @builtin(num_workgroups) nwg: vec3<u32>,
-    @builtin(local_invocation_index) lane: u32,
-) {
-    let t = wid.x + wid.y * nwg.x;
-    if (t >= tile_count()) {
+    if (V.lod_on == 1u || !(al > 0.0lf)) {
+        beam_out[t] = out;
         return;
     }
-    let f = tile_frame(t);
-    let x = f.x0 + lane % f.sx;
-    let y = f.y0 + lane / f.sx;
-    var terms = RayTerms(0.0lf, vec3<f64>(0.0lf), 0.0lf, 0u);
-    if (f.coned && x < f.x1 && y < f.y1) {
-        terms = ray_terms(camera_ray(C, y * C.roi_w + x), f.o, f.axis);
-    }
-    lane_terms[lane] = terms;
-    if (lane == 0u) {
-        atomicStore(&bound_bits, 0x7F7FFFFFu);
-    }
-    workgroupBarrier();
-    if (lane == 0u) {
-        var a = cone_acc();
-        for (var i = 0u; i < 64u; i++) {
-            if (lane_terms[i].flag != 0u) {
-                a = cone_add(a, lane_terms[i]);
-            }
+    let axis = ax / al;
+    // ConeAcc::add over the tile's rays in memory order.
+    var ok = true;
+    var cos2_min = 1.0lf;
+    var dmin = vec3<f64>(NO_BOX);
+    var len2_max = 0.0lf;
+    for (var y = y0; y < y1; y++) {
+        for (var x = x0; x < x1; x++) {
+            let r = camera_ray(C, y * w + x);
+            let d = vec3<f64>(r.d);
+            let c = dot64(d, axis);
+            let l2 = dot64(d, d);
+            ok = ok && all(r.o == first.o) && c > 0.0lf && l2 > 0.0lf;
+            cos2_min = less64(c * c / l2, cos2_min);
+            dmin = vec3<f64>(less64(abs(d.x), dmin.x), less64(abs(d.y), dmin.y), less64(abs(d.z), dmin.z));
+            len2_max = -less64(-l2, -len2_max);
         }
-        tile_cone = cone_finish(a, f.o, f.axis);
-        tile_walks = select(0u, 1u, cone_walks(a));
     }
-    let walks = workgroupUniformLoad(&tile_walks) == 1u;
-    var best = NO_BOX;
-    if (walks) {
-        best = lane_start_distance(tile_cone, lane);
-    }
-    lane_best[lane] = best;
-    workgroupBarrier();
-    if (lane == 0u) {
-        for (var i = 1u; i < 64u; i++) {
-            best = less64(lane_best[i], best);
-        }
-        beam_out[t] = tile_out(walks, tile_cone, best);
-    }
-}
-
-// The same tiles one invocation each, walking alone: the schedule of the
-// CPU twin, for CPU adapters (lavapipe), whose SIMD lanes would run a
-// workgroup's diverging walks one after another (Menger d10 512^2 on
-// lavapipe: beam over plain 0.22-0.24 by workgroup, 0.93-0.95 by thread).
-// CPU twin: src/voxels/beam.rs `beam_nears` (one tile).
-@compute @workgroup_size(64)
-fn beam_nears_by_thread(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
-    let t = linear_id(gid, nwg, 64u);
-    if (t >= tile_count()) {
+    // ConeAcc::finish.
+    let c2 = clamp(cos2_min, 0.0lf, 1.0lf);
+    let cc = sqrt(c2);
+    let ss = sqrt(1.0lf - c2);
+    let cos_half = cc - ss * WIDEN;
+    let sin_half = ss + cc * WIDEN;
+    if (!ok || len2_max == 0.0lf || !(cos_half >= COS_MAX_HALF_ANGLE)) {
+        beam_out[t] = out;
         return;
     }
-    let f = tile_frame(t);
-    var a = cone_acc();
-    if (f.coned) {
-        for (var y = f.y0; y < f.y1; y++) {
-            for (var x = f.x0; x < f.x1; x++) {
-                a = cone_add(a, ray_terms(camera_ray(C, y * C.roi_w + x), f.o, f.axis));
-            }
+    var k: Cone;
+    k.o = vec3<f64>(first.o);
+    k.axis = axis;
+    k.time_error = plane_time_error(first.o, dmin);
+    k.len_max = sqrt(len2_max);
+    k.slack = 2.0lf * k.time_error * k.len_max;
+    k.cos2_half = cos_half * cos_half;
+    k.sin_half = sin_half;
+    k.tan_half = sin_half / cos_half;
+    let best = start_distance(k);
+    // tile_near.
+    if (best >= NO_BOX) {
+        out.meets = 0u;
+    } else {
+        let s = sqrt(best) / k.len_max * (1.0lf - MARGIN) - k.time_error;
+        if (s > f64(V.near)) {
+            out.near = f32(s);
         }
     }
-    let walks = f.coned && cone_walks(a);
-    let k = cone_finish(a, f.o, f.axis);
-    var best = NO_BOX;
-    if (walks) {
-        best = start_distance(k, 0.0lf, 0u, vec4<u32>(0u), false);
-    }
-    beam_out[t] = tile_out(walks, k, best);
+    beam_out[t] = out;
 }

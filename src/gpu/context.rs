@@ -258,12 +258,6 @@ impl GpuContext {
         self.device.features().contains(wgpu::Features::SHADER_F64)
     }
 
-    /// Whether the adapter runs on the host's processor (lavapipe,
-    /// llvmpipe, WARP): its invocations are SIMD lanes of CPU threads.
-    pub fn is_cpu_adapter(&self) -> bool {
-        self.info.device_type == wgpu::DeviceType::Cpu
-    }
-
     /// The pipeline cache, where the adapter supports one.
     pub fn pipeline_cache(&self) -> Option<&wgpu::PipelineCache> {
         self.cache.as_ref()

@@ -169,10 +169,9 @@ pub struct GpuOctree<'c> {
     contours: wgpu::Buffer,
     lut: wgpu::Buffer,
     depth: u32,
-    addressing: GpuAddressing,
     camera: wgpu::ComputePipeline,
     given: wgpu::ComputePipeline,
-    beam: Option<BeamPipeline>,
+    beam: Option<wgpu::ComputePipeline>,
 }
 
 /// Pixels per side of a beam tile (`BEAM_TILE` of kernels/voxels.wgsl; the
@@ -189,72 +188,22 @@ fn beam_tile_count(w: u32, h: u32) -> u64 {
     }
 }
 
-/// How the beam pre-pass spreads its tiles over invocations (the entries
-/// of `kernels/voxel_beam.wgsl`; same starts either way).
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum BeamSchedule {
-    /// `beam_nears`: a workgroup of 64 a tile, the walk shared among its
-    /// lanes (GPUs: an H200 ran one thread a tile 2.6-2.8x slower than the
-    /// cast it shortened).
-    Workgroup,
-    /// `beam_nears_by_thread`: an invocation a tile (CPU adapters, whose
-    /// SIMD lanes run a workgroup's diverging walks one after another).
-    Thread,
-}
-
-impl BeamSchedule {
-    /// The schedule that suits `ctx`'s adapter.
-    pub fn of(ctx: &GpuContext) -> Self {
-        if ctx.is_cpu_adapter() {
-            BeamSchedule::Thread
-        } else {
-            BeamSchedule::Workgroup
-        }
-    }
-
-    fn entry(self) -> &'static str {
-        match self {
-            BeamSchedule::Workgroup => "beam_nears",
-            BeamSchedule::Thread => "beam_nears_by_thread",
-        }
-    }
-
-    /// Invocations a tile.
-    fn lanes(self) -> u64 {
-        match self {
-            BeamSchedule::Workgroup => (BEAM_TILE * BEAM_TILE) as u64,
-            BeamSchedule::Thread => 1,
-        }
-    }
-}
-
 /// The beam pre-pass's pipeline for `addressing` (it reads no contours)
 /// where the adapter has f64 and its compiler takes the kernel; `None`
 /// (casts from `near`, a warning) otherwise, so a backend that cannot build
 /// it still casts.
-fn beam_pipeline(
-    ctx: &GpuContext,
-    addressing: GpuAddressing,
-    schedule: BeamSchedule,
-) -> Option<BeamPipeline> {
+fn beam_pipeline(ctx: &GpuContext, addressing: GpuAddressing) -> Option<wgpu::ComputePipeline> {
     if !ctx.has_f64() {
         return None;
     }
     let k = [("ADDRESSING", addressing as u32 as f64)];
-    pipeline_with(ctx, "voxel_beam", schedule.entry(), &k)
+    pipeline_with(ctx, "voxel_beam", "beam_nears", &k)
         .inspect_err(|e| tracing::warn!("voxel beam pre-pass off: {e}"))
         .ok()
-        .map(|pipeline| BeamPipeline { pipeline, schedule })
 }
 
-/// The beam pre-pass's pipeline and the schedule its entry runs.
-struct BeamPipeline {
-    pipeline: wgpu::ComputePipeline,
-    schedule: BeamSchedule,
-}
-
-/// The bindings of the beam pre-pass (kernels/voxel_beam.wgsl): camera,
-/// params, nodes, and the tiles it writes.
+/// The bindings of `beam_nears` (kernels/voxel_beam.wgsl): camera, params,
+/// nodes, and the tiles it writes.
 fn beam_bindings<'a>(
     (cu, vu, nodes): (&'a wgpu::Buffer, &'a wgpu::Buffer, &'a wgpu::Buffer),
     tiles: &'a wgpu::Buffer,
@@ -262,17 +211,17 @@ fn beam_bindings<'a>(
     [(0, cu), (1, vu), (2, nodes), (9, tiles)]
 }
 
-/// The beam pre-pass over `n_tiles` tiles.
+/// The beam pre-pass over `n_tiles` tiles, one invocation a tile.
 fn beam_pass<'a>(
-    beam: &'a BeamPipeline,
+    pipeline: &'a wgpu::ComputePipeline,
     buffers: &'a [(u32, &'a wgpu::Buffer)],
     n_tiles: u64,
 ) -> Pass<'a> {
     Pass {
-        label: beam.schedule.entry(),
-        pipeline: &beam.pipeline,
+        label: "beam_nears",
+        pipeline,
         buffers,
-        n: n_tiles * beam.schedule.lanes(),
+        n: n_tiles,
         wg: 64,
     }
 }
@@ -331,23 +280,13 @@ impl<'c> GpuOctree<'c> {
             depth,
             camera: pipeline_with(ctx, "voxels", "cast_camera", &k)?,
             given: pipeline_with(ctx, "voxels", "cast_rays", &k)?,
-            addressing,
-            beam: beam_pipeline(ctx, addressing, BeamSchedule::of(ctx)),
+            beam: beam_pipeline(ctx, addressing),
         })
-    }
-
-    /// The same octree with its beam pre-pass run by `schedule` instead of
-    /// the one that suits the adapter (the tests run both on one adapter).
-    pub fn with_beam_schedule(self, schedule: BeamSchedule) -> Self {
-        GpuOctree {
-            beam: beam_pipeline(self.ctx, self.addressing, schedule),
-            ..self
-        }
     }
 
     /// The beam pre-pass a camera cast with `p` runs: asked for, built (the
     /// adapter has f64), and no LOD cut (whose stop need not be solid).
-    fn beam_for(&self, p: &GpuCastParams) -> Option<&BeamPipeline> {
+    fn beam_for(&self, p: &GpuCastParams) -> Option<&wgpu::ComputePipeline> {
         self.beam.as_ref().filter(|_| p.beam && p.lod.is_none())
     }
 

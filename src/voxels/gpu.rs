@@ -139,7 +139,7 @@ pub fn attr_image_gpu(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::gpu::voxels::{BeamSchedule, GpuAddressing};
+    use crate::gpu::voxels::GpuAddressing;
     use crate::rays::Roi;
     use crate::voxels::beam::{beam_nears, TILE};
     use crate::voxels::cast::{Absolute, Lod, Relative};
@@ -192,8 +192,7 @@ mod tests {
     /// The GPU's tile starts (kernels/voxel_beam.wgsl) against the CPU's
     /// (`beam_nears`, the f32 rays' tiles), octree and DAG, at 123 x 77
     /// (partial tiles at the right and bottom) and one row of a 300 x 300
-    /// image (runs of 64), by both schedules (a workgroup a tile, the
-    /// GPUs'; a thread a tile, the CPU adapters'):
+    /// image (runs of 64):
     /// the same tiles meet nothing, the others start at the same f32
     /// distance (the GPU's f64 square root or division may round apart:
     /// within 2^-20 relative).
@@ -223,14 +222,9 @@ mod tests {
                 (TILE, TILE)
             };
             let across = w.div_ceil(tw);
-            let runs = uploads.into_iter().zip(cpu).flat_map(|(u, cpu)| {
+            for ((nodes, addressing), cpu) in uploads.into_iter().zip(cpu) {
                 let cpu = cpu.unwrap();
-                [BeamSchedule::Workgroup, BeamSchedule::Thread].map(|s| (u, cpu.clone(), s))
-            });
-            for ((nodes, addressing), cpu, schedule) in runs {
-                let g = GpuOctree::with(ctx, nodes, depth, addressing, None)
-                    .unwrap()
-                    .with_beam_schedule(schedule);
+                let g = GpuOctree::with(ctx, nodes, depth, addressing, None).unwrap();
                 let gpu = g.beam_tiles(&cam, &gen, &gpu_params(&p), &budget).unwrap();
                 assert_eq!(gpu.len(), across * h.div_ceil(th));
                 let (mut started, mut empty, mut equal) = (0, 0, 0);
@@ -258,7 +252,7 @@ mod tests {
                     assert!(started >= 2, "{started}");
                 }
                 eprintln!(
-                    "{w}x{h} {addressing:?} {schedule:?}: {empty} of {} tiles empty, {equal} bit-equal",
+                    "{w}x{h} {addressing:?}: {empty} of {} tiles empty, {equal} bit-equal",
                     gpu.len()
                 );
             }
