@@ -85,8 +85,10 @@ pub fn cast_batch(
 /// `p` in the kernel's f32: near and far as `F::of` rounds them (far
 /// clamped to `f32::MAX`, a bound no ray reaches in the unit box), the LOD
 /// footprint halved after rounding, as the CPU cast does; camera rays in
-/// [`ThreadOrder::Tiles`] from beam starts (as the CPU's beam path,
-/// [`super::beam`]; where the adapter runs it).
+/// [`ThreadOrder::Tiles`] from `near`: the beam pre-pass (`beam`, as the
+/// CPU's beam path, [`super::beam`]) costs more than it saves on every
+/// adapter measured (beam over plain: H200 0.34-0.57, lavapipe 0.87-0.95;
+/// docs/PERF.md), so it runs only where asked.
 pub fn gpu_params(p: &CastParams) -> GpuCastParams {
     GpuCastParams {
         near: p.near as f32,
@@ -96,7 +98,7 @@ pub fn gpu_params(p: &CastParams) -> GpuCastParams {
             .map(|l| (l.orig_size as f32 * 0.5, l.dir_size as f32 * 0.5)),
         max_iter: p.max_iter,
         order: ThreadOrder::Tiles,
-        beam: true,
+        beam: false,
     }
 }
 
@@ -269,8 +271,8 @@ mod tests {
         let (depth, t) = (SPONGE_DEPTH, sponge(&budget));
         let (cam, gen, _, p) = sponge_view(&budget, (123, 77), None);
         let g = GpuOctree::new(ctx, &t.nodes, depth).unwrap();
-        let on = gpu_params(&p);
-        let off = GpuCastParams { beam: false, ..on };
+        let off = gpu_params(&p);
+        let on = GpuCastParams { beam: true, ..off };
         let plain = g.cast_camera(&cam, &gen, &off, false, &budget).unwrap();
         assert!(!plain.beam);
         for order in [ThreadOrder::Tiles, ThreadOrder::Rows] {

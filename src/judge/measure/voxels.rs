@@ -283,10 +283,10 @@ fn differing<F: Real>(a: &VoxelHits<F>, b: &VoxelHits<F>) -> u64 {
 }
 
 /// The GPU camera cast in three variants ([`VARIANTS`]: both
-/// [`ThreadOrder`]s from beam starts, and tiles from `near`), per variant:
+/// [`ThreadOrder`]s from `near`, and tiles from beam starts), per variant:
 /// seconds a cast (submit to readback; the kernels' where the adapter has
 /// timestamps); the fraction of lane-iterations 32-lane warps spend on work
-/// in either order ([`warp_efficiency`] of the tiled beam cast's own
+/// in either order ([`warp_efficiency`] of the tiled cast's own
 /// iteration counts); the rays whose results differ between the orders
 /// (none: only the thread moves) and between the beam and `near` starts
 /// other than in iterations and node words read (none: the beam start never
@@ -302,18 +302,18 @@ struct CameraCasts {
     rays: f64,
 }
 
-/// The variants [`camera_casts`] casts: rows from the beam, tiles from the
-/// beam (the default), tiles from `near`.
+/// The variants [`camera_casts`] casts: rows from `near`, tiles from
+/// `near` (the default, [`gpu_params`]), tiles from the beam starts.
 const VARIANTS: [(ThreadOrder, bool); 3] = [
-    (ThreadOrder::Rows, true),
-    (ThreadOrder::Tiles, true),
+    (ThreadOrder::Rows, false),
     (ThreadOrder::Tiles, false),
+    (ThreadOrder::Tiles, true),
 ];
 
 impl CameraCasts {
     /// `{s}_gpu_coherent_rows_kernel_mrays_per_s` and
-    /// `{s}_gpu_coherent_plain_kernel_mrays_per_s` (`..._mrays_per_s`
-    /// without timestamps; the tiled beam figures are the scenario's
+    /// `{s}_gpu_coherent_beam_kernel_mrays_per_s` (`..._mrays_per_s`
+    /// without timestamps; the tiled figures from `near` are the scenario's
     /// `{s}_gpu_coherent_*`), `{s}_gpu_coherent_tiles_over_rows` and
     /// `{s}_gpu_coherent_beam_over_plain` (speed ratios, kernels' clock
     /// where there is one), `{s}_coherent_warp32_efficiency_{rows,tiles}`,
@@ -327,7 +327,7 @@ impl CameraCasts {
         } else {
             ""
         };
-        for (k, name) in [(0, "rows"), (2, "plain")] {
+        for (k, name) in [(0, "rows"), (2, "beam")] {
             out.metric(
                 &format!("{s}_gpu_coherent_{name}_{clock}mrays_per_s"),
                 self.rays / secs(k).max(1e-12) / 1e6,
@@ -345,7 +345,7 @@ impl CameraCasts {
         );
         out.metric(
             &format!("{s}_gpu_coherent_beam_over_plain"),
-            secs(2) / secs(1).max(1e-12),
+            secs(1) / secs(2).max(1e-12),
         );
         out.metric(
             &format!("{s}_gpu_coherent_order_differing_rays"),
@@ -369,7 +369,7 @@ impl CameraCasts {
 /// [`ROUNDS`] interleaved rounds of the camera cast in the three
 /// [`VARIANTS`] (which goes first rotates; `p.order` and `p.beam` are
 /// ignored) after [`warm_up`]; seconds a cast averaged over the rounds, and
-/// the last cast from `near`.
+/// the last tiled cast from `near`.
 fn camera_casts(
     g: &GpuOctree,
     (cam, gen): (&Camera, &RayGen),
@@ -406,7 +406,7 @@ fn camera_casts(
             last[k] = Some(c);
         }
     }
-    let [Some(rows), Some(tiles), Some(plain)] = last else {
+    let [Some(rows), Some(tiles), Some(beam)] = last else {
         unreachable!("ROUNDS > 0")
     };
     let r = ROUNDS as f64;
@@ -414,17 +414,17 @@ fn camera_casts(
     cc.kernel_s = cc.kernel_s.map(|s| s.map(|s| s / r));
     let iters: Vec<u32> = tiles.hits.iter().map(|h| h.iters).collect();
     cc.rays = iters.len() as f64;
-    cc.beam_iters = mean(iters.iter().map(|&i| i as f64));
-    cc.beam_ran = tiles.beam;
+    cc.beam_iters = mean(beam.hits.iter().map(|h| h.iters as f64));
+    cc.beam_ran = beam.beam;
     let w = gen.region().width;
     cc.warp32 = [ThreadOrder::Rows, ThreadOrder::Tiles].map(|o| warp_efficiency(&iters, o, w, 32));
     cc.order_differing = (rows.hits.iter().zip(&tiles.hits))
         .filter(|(a, b)| bytemuck::bytes_of(*a) != bytemuck::bytes_of(*b))
         .count() as u64;
-    cc.beam_differing = (plain.hits.iter().zip(&tiles.hits))
+    cc.beam_differing = (beam.hits.iter().zip(&tiles.hits))
         .filter(|(a, b)| a.outcome() != b.outcome())
         .count() as u64;
-    Ok((cc, plain))
+    Ok((cc, tiles))
 }
 
 /// Wall seconds of GPU casts run before a timed one: the first dispatch of
@@ -552,9 +552,9 @@ pub fn cpu_vs_gpu(
             // `gc`: the cast whose node words are reported (from `near`, as
             // the per-ray CPU cast reads them).
             let (gpu_s, kernel_s, gc) = if set == "coherent" {
-                let (cc, plain) = camera_casts(&g, (cam, gen), &gpu_params(&p), budget)?;
+                let (cc, tiles) = camera_casts(&g, (cam, gen), &gpu_params(&p), budget)?;
                 cc.report(sname, out);
-                (cc.gpu_s[1], cc.kernel_s[1], plain)
+                (cc.gpu_s[1], cc.kernel_s[1], tiles)
             } else {
                 warm_up(|| g.cast_rays(&packed, &gpu_params(&p), budget).map(drop))?;
                 let gc = g.cast_rays(&packed, &gpu_params(&p), budget)?;

@@ -42,7 +42,7 @@ use crate::voxels::through::{CastPath, Through};
 
 ops! {
     "voxels.render" CpuGpuF32 render ["rays", "count", "seed", "cast", "beam"]
-        "ESVO cast of a voxels scene: hit, t, leaf, normal, image, iters; build_s, bytes_per_voxel, mrays_per_s (CPU: param cast picks the path, default per_ray; GPU: param beam, camera rays from the beam pre-pass, default true; each refused on the other backend)";
+        "ESVO cast of a voxels scene: hit, t, leaf, normal, image, iters; build_s, bytes_per_voxel, mrays_per_s (CPU: param cast picks the path, default per_ray; GPU: param beam, camera rays from the beam pre-pass, default false: slower than casts from near on the H200 and lavapipe; each refused on the other backend)";
     "voxels.referee" Any referee_op ["rays", "count", "seed", "near_margin"]
         "exact f64 Amanatides-Woo DDA over the scene predicate: hit, t, leaf, normal, tie, near_tie, untied, clear";
     "voxels.sphere_bounds" Any sphere_bounds_op ["rays", "count", "seed", "slack_rel"]
@@ -56,7 +56,7 @@ ops! {
     "voxels.contour_error" Cpu contour_op []
         "t error of cubes vs contours against the analytic sphere (max, p99); per ray box_excess and slab_excess of contour hits";
     "voxels.gpu_parity" GpuF32 gpu_parity ["rays", "count", "seed", "ulp_margin", "beam"]
-        "GPU vs CPU f32 voxel cast on the same rays: both outputs (and with scene attributes both attribute images, image / cpu_image), excused (referee ties / one-ulp near ties where leaves differ, and in contour casts slab ties at the leaf one cast passed), normal_not_excused (also normal ties where normals differ), t_not_excused (also t at normal ties and at contour slab entries within the plane's rounding)";
+        "GPU vs CPU f32 voxel cast on the same rays (GPU camera rays from its beam pre-pass unless param beam is false: the parity cases keep it checked): both outputs (and with scene attributes both attribute images, image / cpu_image), excused (referee ties / one-ulp near ties where leaves differ, and in contour casts slab ties at the leaf one cast passed), normal_not_excused (also normal ties where normals differ), t_not_excused (also t at normal ties and at contour slab entries within the plane's rounding)";
     "voxels.gpu_bench" GpuF32 gpu_bench ["count", "size", "seed"]
         "CPU per-ray, CPU packet and GPU casts of octree and DAG in one run, coherent (size^2 camera; size 0: the scene's width x height) and incoherent (count): Mrays/CPU-s, GPU Mrays/s (submit to readback, and kernels alone on the GPU clock where the adapter has timestamps), packet speedup, mean iterations, node bytes per ray";
     "voxels.attributes" Cpu attributes_op []
@@ -127,7 +127,7 @@ fn render(ctx: &OpCtx) -> Result<Outputs> {
     let mut out = if ctx.backend == BackendKind::Cpu {
         by_precision!(ctx, render_in(ctx, &sc, th, &tree))?
     } else {
-        let (r, wall, _) = timed(|| gpu_run(ctx, &sc, th, ctx.dump));
+        let (r, wall, _) = timed(|| gpu_run(ctx, &sc, (th, false), ctx.dump));
         let (cast, b, _) = r?;
         let a = for_scene(&sc.shape, &tree, sc.attributes)?;
         let mut out = Outputs::default();
@@ -271,13 +271,13 @@ fn contour_op(ctx: &OpCtx) -> Result<Outputs> {
 }
 
 /// Casts the case's rays on the GPU: camera rays are generated there (and
-/// read back when `keep`) and cast from the GPU's beam starts unless param
-/// `beam` is false, other sources are uploaded. The cast, the rays as the
-/// kernel saw them, the cast parameters.
+/// read back when `keep`) and cast from the GPU's beam starts where param
+/// `beam` (default `beam`) is true, other sources are uploaded. The cast,
+/// the rays as the kernel saw them, the cast parameters.
 fn gpu_run(
     ctx: &OpCtx,
     sc: &VoxelScene,
-    th: Through,
+    (th, beam): (Through, bool),
     keep: bool,
 ) -> Result<(GpuCast, Batch<f32>, CastParams)> {
     let g = th.upload(GpuContext::get()?)?;
@@ -294,7 +294,7 @@ fn gpu_run(
         lod,
         max_iter,
     };
-    let beam = ctx.param_or("beam", true)?;
+    let beam = ctx.param_or("beam", beam)?;
     let (cast, b) = cast_camera(&g, (&cam, &gen), (&p, beam), keep, &ctx.budget)?;
     Ok((cast, b, p))
 }
@@ -308,7 +308,7 @@ fn gpu_parity(ctx: &OpCtx) -> Result<Outputs> {
     let tree = build(&sc.shape, sc.depth, &ctx.budget)?;
     let (dag, cs) = sc.extras(&tree, &ctx.budget)?;
     let th = Through::pick(&tree, dag.as_ref(), cs.as_deref());
-    let (cast, b, p) = gpu_run(ctx, &sc, th, true)?;
+    let (cast, b, p) = gpu_run(ctx, &sc, (th, true), true)?;
     let scene = (&sc.shape, sc.depth);
     let a = for_scene(&sc.shape, &tree, sc.attributes)?;
     let at = (margin, a.as_ref().map(|a| (a, sc.attributes)));
