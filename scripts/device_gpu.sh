@@ -17,15 +17,16 @@
 #   render  hpjudge render of the Cornell box on the GPU at 512x512, 64 spp
 #   cases:F the GPU cases whose id contains F, with --dump-failing; the
 #           failing ones' tensors come back as $OUT/cases_F.tar.gz
-# Device time is short (15 minutes a task as of 2026-11-29, start-up
-# included; a command at most 10 minutes) and the whole suite took 523 s on
-# the H100: run `suite` alone or not at all. The GPU items issue 15 still
-# has open (docs/PERF.md, eighth session) fit one call; the two perf stages
-# also give the tiled thread order's gain over rows on the GPU
-# (`*_gpu_coherent_tiles_over_rows`; twenty-first session) and the beam
-# pre-pass's over casts from `near` (`*_gpu_coherent_beam_over_plain`,
-# `*_gpu_coherent_beam_ran` 1 where the adapter has f64; twenty-second):
-#   info perf:voxels_gpu_menger_d10_1080p perf:voxels_gpu_sphere_d10 cases:voxel_gpu cases:vol_tiny cases:gpu_vol_hash
+# Device time is short (15 minutes a task as of 2026-11-30, start-up
+# included, about 35 s a start on the H200; a command at most 10 minutes) and
+# the whole suite took 523 s on the H100: run `suite` alone or not at all.
+# Every GPU case (`cases:`, 84-108 s on the H200) and the voxel table
+# (`perf:voxels_gpu_`, about 130 s, most of it building the Menger trees)
+# fit one call; the perf stages also give the tiled thread order's gain over
+# rows (`*_gpu_coherent_tiles_over_rows`) and the beam pre-pass's over casts
+# from `near` (`*_gpu_coherent_beam_over_plain`, `*_gpu_coherent_beam_ran` 1
+# where the adapter has f64). The twenty-fourth session's calls:
+#   info perf:voxels_gpu_menger_d10 perf:voxels_gpu_sphere perf:voxels_gpu_points perf:voxels_gpu_bunny cases: render
 # Perf and info output lands in $OUT/results.tar.gz; the log is $OUT/log.txt; the last
 # lines printed are a summary (suite verdicts, perf metrics named by
 # HP_PERF_KEYS, a regex; default every metric). HP_DEADLINE_S (seconds from
