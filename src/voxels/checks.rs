@@ -457,6 +457,27 @@ mod tests {
         }
     }
 
+    /// The pair the tests judge: cube casts (no contours, no LOD levels) of
+    /// the rays `o`, `d` in `scene` with `p`.
+    fn cube_pair<'a>(
+        (gpu, cpu): (&'a VoxelHits<f32>, &'a VoxelHits<f32>),
+        (o, d): (&'a [[f32; 3]], &'a [[f32; 3]]),
+        scene: (&'a Shape, u32),
+        p: &'a CastParams,
+    ) -> CastPair<'a> {
+        CastPair {
+            gpu,
+            cpu,
+            o,
+            d,
+            scene,
+            gpu_level: &[],
+            contours: None,
+            p,
+            case: "test",
+        }
+    }
+
     #[test]
     fn normal_differences_are_excused_at_edges_only() {
         // A sphere of radius 10 fills the root box, so the scene is a solid
@@ -470,17 +491,8 @@ mod tests {
         let ts = [2.0 * std::f32::consts::SQRT_2, 2.0];
         let gpu = hits(&[[-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]], &ts);
         let cpu = hits(&[[0.0, -1.0, 0.0], [-1.0, 0.0, 0.0]], &ts);
-        let pair = CastPair {
-            gpu: &gpu,
-            cpu: &cpu,
-            o: &o,
-            d: &d,
-            scene: (&shape, 4),
-            gpu_level: &[],
-            contours: None,
-            p: &CastParams::default(),
-            case: "test",
-        };
+        let p = CastParams::default();
+        let pair = cube_pair((&gpu, &cpu), (&o, &d), (&shape, 4), &p);
         assert_eq!(pair.leaf_ties(2f64.powi(-22)), (vec![0, 0], 0));
         assert_eq!(pair.normal_ties(2f64.powi(-22)), (vec![1, 0], 2));
     }
@@ -508,15 +520,8 @@ mod tests {
             ..CastParams::default()
         };
         let pair = CastPair {
-            gpu: &gpu,
-            cpu: &cpu,
-            o: &o,
-            d: &d,
-            scene: (&shape, 8),
             gpu_level: &[6],
-            contours: None,
-            p: &p,
-            case: "test",
+            ..cube_pair((&gpu, &cpu), (&o, &d), (&shape, 8), &p)
         };
         assert_eq!(pair.normal_ties(2f64.powi(-22)), (vec![1], 1));
         let no_lod = CastParams::default();
@@ -551,17 +556,7 @@ mod tests {
         gpu.leaf = vec![[648, 511, 146], [242, 208, 728]];
         cpu.leaf.clone_from(&gpu.leaf);
         let p = CastParams::default();
-        let pair = CastPair {
-            gpu: &gpu,
-            cpu: &cpu,
-            o: &o,
-            d: &d,
-            scene: (&shape, 10),
-            gpu_level: &[],
-            contours: None,
-            p: &p,
-            case: "test",
-        };
+        let pair = cube_pair((&gpu, &cpu), (&o, &d), (&shape, 10), &p);
         let margin = 2f64.powi(-22);
         let (excused, _) = pair.leaf_ties(margin);
         let (normal_ok, _) = pair.normal_ties(margin);
@@ -630,15 +625,8 @@ mod tests {
         };
         let p = CastParams::default();
         let pair = CastPair {
-            gpu: &gpu,
-            cpu: &cpu,
-            o: &o,
-            d: &d,
-            scene: (&shape, 8),
-            gpu_level: &[],
             contours: Some((&tree, &cs)),
-            p: &p,
-            case: "test",
+            ..cube_pair((&gpu, &cpu), (&o, &d), (&shape, 8), &p)
         };
         let (margin, none) = (2f64.powi(-22), [0; 4]);
         assert_eq!(pair.t_not_excused(margin, &none, &none), [0; 4]);
@@ -679,15 +667,8 @@ mod tests {
         let p = CastParams::default();
         for (gpu, cpu) in [(&missed, &stopped), (&stopped, &missed), (&next, &stopped)] {
             let pair = CastPair {
-                gpu,
-                cpu,
-                o: &o,
-                d: &d,
-                scene: (&shape, 3),
-                gpu_level: &[],
                 contours: Some((&tree, &cs)),
-                p: &p,
-                case: "test",
+                ..cube_pair((gpu, cpu), (&o, &d), (&shape, 3), &p)
             };
             assert_eq!(pair.leaf_ties(2f64.powi(-22)), (vec![1, 1, 0], 3));
             let cubes = CastPair {

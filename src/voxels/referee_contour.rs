@@ -37,12 +37,17 @@ fn box_interval(lo: [f64; 3], s: f64, o: [f64; 3], d: [f64; 3]) -> ((f64, usize)
     (enter, exit)
 }
 
+/// The depth-`depth` voxel `voxel`'s edge, low corner and centre.
+fn voxel_box(depth: u32, voxel: [u32; 3]) -> (f64, [f64; 3], [f64; 3]) {
+    let s = 2.0 / (1u64 << depth) as f64;
+    let lo = voxel.map(|i| -1.0 + i as f64 * s);
+    (s, lo, lo.map(|x| x + 0.5 * s))
+}
+
 /// The t at which `o + t d` enters the depth-`depth` voxel `voxel`'s box.
 pub fn voxel_entry(depth: u32, voxel: [u32; 3], o: [f64; 3], d: [f64; 3]) -> f64 {
-    let s = 2.0 / (1u64 << depth) as f64;
-    box_interval(voxel.map(|i| -1.0 + i as f64 * s), s, o, d)
-        .0
-         .0
+    let (s, lo, _) = voxel_box(depth, voxel);
+    box_interval(lo, s, o, d).0 .0
 }
 
 /// Whether the ray `o + t d` over `[near, far]` meets contour `v`'s slab in
@@ -66,9 +71,7 @@ pub fn slab_tie(
     if v == 0 {
         return false;
     }
-    let s = 2.0 / (1u64 << depth) as f64;
-    let lo = voxel.map(|i| -1.0 + i as f64 * s);
-    let c = lo.map(|x| x + 0.5 * s);
+    let (s, lo, c) = voxel_box(depth, voxel);
     let ((te, ae), (tx, ax)) = box_interval(lo, s, o, d);
     let (ta, tb) = slab_interval(v, c, s, o, d);
     // A ray that misses the box (a corner or edge within rounding is the
@@ -145,9 +148,7 @@ pub fn slab_entry_t_tie(
     if v == 0 {
         return false;
     }
-    let s = 2.0 / (1u64 << depth) as f64;
-    let lo = voxel.map(|i| -1.0 + i as f64 * s);
-    let c = lo.map(|x| x + 0.5 * s);
+    let (s, lo, c) = voxel_box(depth, voxel);
     let ((te, _), _) = box_interval(lo, s, o, d);
     let (ta, _) = slab_interval(v, c, s, o, d);
     let (n, _, _) = super::contour::decode::<f64>(v);
