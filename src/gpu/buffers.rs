@@ -68,6 +68,7 @@ pub fn uniform<T: Pod>(ctx: &GpuContext, label: &str, value: &T) -> wgpu::Buffer
 /// One compute dispatch: `pipeline` over `n` items (workgroup size `wg`),
 /// with `(binding, buffer)` pairs of `@group(0)` (exactly the bindings the
 /// entry point uses: wgpu derives the layout from the shader).
+#[derive(Clone, Copy)]
 pub struct Pass<'a> {
     pub label: &'a str,
     pub pipeline: &'a wgpu::ComputePipeline,

@@ -111,6 +111,11 @@ pub struct GpuCastParams {
     /// run where the adapter has f64 and there is no LOD cut;
     /// [`GpuCast::beam`] says whether it ran).
     pub beam: bool,
+    /// Casts run back to back in one submission (at least 1), the
+    /// results the last one's and [`GpuCast`]'s times per cast: a GPU fed
+    /// one short cast at a time between readbacks may never leave its idle
+    /// clock (an H200 sampled at 345 of its 1980 MHz through such casts).
+    pub repeat: u32,
 }
 
 /// One 8x8 pixel tile's beam start (`struct BeamTile` of the kernels):
@@ -384,17 +389,20 @@ impl<'c> GpuOctree<'c> {
             (7, &self.lut),
             (8, &tiles),
         ];
-        let mut passes = Vec::with_capacity(2);
-        if let Some(bp) = pre_pass {
-            passes.push(beam_pass(bp, &beam_buffers, n_tiles));
+        let reps = p.repeat.max(1);
+        let mut passes = Vec::with_capacity(2 * reps as usize);
+        for _ in 0..reps {
+            if let Some(bp) = pre_pass {
+                passes.push(beam_pass(bp, &beam_buffers, n_tiles));
+            }
+            passes.push(Pass {
+                label: "cast_camera",
+                pipeline: &self.camera,
+                buffers: &cast_buffers,
+                n: thread_count(p.order, roi.width, roi.height),
+                wg: 64,
+            });
         }
-        passes.push(Pass {
-            label: "cast_camera",
-            pipeline: &self.camera,
-            buffers: &cast_buffers,
-            n: thread_count(p.order, roi.width, roi.height),
-            wg: 64,
-        });
         let read: Vec<&wgpu::Buffer> = if keep_rays {
             vec![&hits, &rays]
         } else {
@@ -407,11 +415,12 @@ impl<'c> GpuOctree<'c> {
         } else {
             Vec::new()
         };
+        let per = 1.0 / reps as f64;
         Ok(GpuCast {
             hits: rb.take(0, n)?,
             rays,
-            gpu_s: rb.gpu_s,
-            kernel_s: rb.kernel_s,
+            gpu_s: rb.gpu_s * per,
+            kernel_s: rb.kernel_s.map(|s| s * per),
             max_iter: vp.max_iter,
             beam,
         })
@@ -477,24 +486,28 @@ impl<'c> GpuOctree<'c> {
             let vu = uniform(self.ctx, "voxel params", &self.params(p, m as u32, false)?);
             let inb = storage_in(self.ctx, "voxel rays in", chunk)?;
             let hits = storage_out(self.ctx, "voxel hits", m * 32)?;
+            let buffers = [
+                (1, &vu),
+                (2, &self.nodes),
+                (3, &inb),
+                (4, &hits),
+                (6, &self.contours),
+                (7, &self.lut),
+            ];
             let pass = Pass {
                 label: "cast_rays",
                 pipeline: &self.given,
-                buffers: &[
-                    (1, &vu),
-                    (2, &self.nodes),
-                    (3, &inb),
-                    (4, &hits),
-                    (6, &self.contours),
-                    (7, &self.lut),
-                ],
+                buffers: &buffers,
                 n: m,
                 wg: 64,
             };
-            let rb = run_timed(self.ctx, "cast_rays", &[pass], &[&hits])?;
+            let reps = p.repeat.max(1);
+            let passes = vec![pass; reps as usize];
+            let rb = run_timed(self.ctx, "cast_rays", &passes, &[&hits])?;
             out.hits.extend(rb.take::<GpuVoxelHit>(0, m as usize)?);
-            out.gpu_s += rb.gpu_s;
-            out.kernel_s = out.kernel_s.zip(rb.kernel_s).map(|(a, b)| a + b);
+            let per = 1.0 / reps as f64;
+            out.gpu_s += rb.gpu_s * per;
+            out.kernel_s = out.kernel_s.zip(rb.kernel_s).map(|(a, b)| a + b * per);
         }
         Ok(out)
     }

@@ -99,6 +99,7 @@ pub fn gpu_params(p: &CastParams) -> GpuCastParams {
         max_iter: p.max_iter,
         order: ThreadOrder::Tiles,
         beam: false,
+        repeat: 1,
     }
 }
 
@@ -259,6 +260,36 @@ mod tests {
                 );
             }
         }
+    }
+
+    /// Casts run back to back in one submission (`repeat`, for timing
+    /// under sustained load) leave the last one's results: the same hits,
+    /// camera and given rays.
+    #[test]
+    fn repeated_casts_leave_the_same_hits() {
+        let Some(ctx) = f64_gpu() else { return };
+        let budget = MemBudget::fixed(1 << 30);
+        let (depth, t) = (SPONGE_DEPTH, sponge(&budget));
+        let (cam, gen, b, p) = sponge_view(&budget, (40, 30), None);
+        let g = GpuOctree::new(ctx, &t.nodes, depth).unwrap();
+        let once = gpu_params(&p);
+        let thrice = GpuCastParams { repeat: 3, ..once };
+        let a = g.cast_camera(&cam, &gen, &once, false, &budget).unwrap();
+        let c = g.cast_camera(&cam, &gen, &thrice, false, &budget).unwrap();
+        assert_eq!(
+            bytemuck::cast_slice::<_, u8>(&a.hits),
+            bytemuck::cast_slice::<_, u8>(&c.hits)
+        );
+        let packed: Vec<[f32; 6]> = (b.o.iter().zip(&b.d))
+            .map(|(o, d)| [o[0], o[1], o[2], d[0], d[1], d[2]])
+            .collect();
+        let a = g.cast_rays(&packed, &once, &budget).unwrap();
+        let c = g.cast_rays(&packed, &thrice, &budget).unwrap();
+        assert_eq!(
+            bytemuck::cast_slice::<_, u8>(&a.hits),
+            bytemuck::cast_slice::<_, u8>(&c.hits)
+        );
+        assert!(a.hits.iter().any(|h| h.hit()));
     }
 
     /// Camera casts from the GPU's beam starts: hit, t, voxel and normal

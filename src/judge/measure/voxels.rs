@@ -367,8 +367,9 @@ impl CameraCasts {
 }
 
 /// [`ROUNDS`] interleaved rounds of the camera cast in the three
-/// [`VARIANTS`] (which goes first rotates; `p.order` and `p.beam` are
-/// ignored) after [`warm_up`]; seconds a cast averaged over the rounds, and
+/// [`VARIANTS`] (which goes first rotates; `p.order`, `p.beam` and
+/// `p.repeat` are ignored), each timed over submissions of [`sustained`]
+/// casts, after [`warm_up`]; seconds a cast averaged over the rounds, and
 /// the last tiled cast from `near`.
 fn camera_casts(
     g: &GpuOctree,
@@ -386,13 +387,24 @@ fn camera_casts(
         beam_ran: false,
         rays: 0.0,
     };
-    let cast = |(order, beam): (ThreadOrder, bool)| {
-        let q = GpuCastParams { order, beam, ..*p };
+    let cast = |(order, beam): (ThreadOrder, bool), repeat: u32| {
+        let q = GpuCastParams {
+            order,
+            beam,
+            repeat,
+            ..*p
+        };
         g.cast_camera(cam, gen, &q, false, budget)
     };
+    // One cast of each variant sizes its submissions.
+    let mut reps = [1; VARIANTS.len()];
+    for (k, v) in VARIANTS.into_iter().enumerate() {
+        let c = cast(v, 1)?;
+        reps[k] = sustained(c.kernel_s.unwrap_or(c.gpu_s));
+    }
     warm_up(|| {
-        for v in VARIANTS {
-            cast(v)?;
+        for (k, v) in VARIANTS.into_iter().enumerate() {
+            cast(v, reps[k])?;
         }
         Ok(())
     })?;
@@ -400,7 +412,7 @@ fn camera_casts(
     for round in 0..ROUNDS as usize {
         for j in 0..VARIANTS.len() {
             let k = (round + j) % VARIANTS.len();
-            let c = cast(VARIANTS[k])?;
+            let c = cast(VARIANTS[k], reps[k])?;
             cc.gpu_s[k] += c.gpu_s;
             cc.kernel_s[k] = cc.kernel_s[k].zip(c.kernel_s).map(|(a, b)| a + b);
             last[k] = Some(c);
@@ -432,6 +444,29 @@ fn camera_casts(
 /// run its first millisecond-long casts at idle clocks (a boost clock is
 /// reached over milliseconds to tens of milliseconds).
 const WARM_S: f64 = 0.25;
+
+/// GPU seconds one timed submission of casts keeps the GPU busy for
+/// ([`GpuCastParams::repeat`] casts back to back). Fed one cast of a
+/// millisecond or so at a time with a readback between, an H200's SM clock
+/// read its idle 345 MHz (boost 1980) through every voxel measurement of
+/// the twenty-fourth session (nvidia-smi every 100 ms: 3-10% busy).
+const SUSTAIN_S: f64 = 0.05;
+
+/// Most casts in one submission.
+const MAX_REPEAT: u32 = 256;
+
+/// Casts of `secs` each (one cast timed alone) that fill a submission of
+/// [`SUSTAIN_S`]: at least 1, at most [`MAX_REPEAT`].
+fn sustained(secs: f64) -> u32 {
+    let n = (SUSTAIN_S / secs).ceil();
+    if n >= MAX_REPEAT as f64 {
+        MAX_REPEAT
+    } else if n >= 1.0 {
+        n as u32
+    } else {
+        1
+    }
+}
 
 /// Runs `cast` at least once and until [`WARM_S`] have passed.
 fn warm_up(mut cast: impl FnMut() -> Result<()>) -> Result<()> {
@@ -556,8 +591,13 @@ pub fn cpu_vs_gpu(
                 cc.report(sname, out);
                 (cc.gpu_s[1], cc.kernel_s[1], tiles)
             } else {
-                warm_up(|| g.cast_rays(&packed, &gpu_params(&p), budget).map(drop))?;
-                let gc = g.cast_rays(&packed, &gpu_params(&p), budget)?;
+                let one = g.cast_rays(&packed, &gpu_params(&p), budget)?;
+                let q = GpuCastParams {
+                    repeat: sustained(one.kernel_s.unwrap_or(one.gpu_s)),
+                    ..gpu_params(&p)
+                };
+                warm_up(|| g.cast_rays(&packed, &q, budget).map(drop))?;
+                let gc = g.cast_rays(&packed, &q, budget)?;
                 (gc.gpu_s, gc.kernel_s, gc)
             };
             let m = gc.hits.len() as f64;
@@ -578,4 +618,19 @@ pub fn cpu_vs_gpu(
         }
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn sustained_submissions_fill_the_gpu_for_their_span() {
+        assert_eq!(sustained(1e-3), 50);
+        assert_eq!(sustained(0.02), 3);
+        assert_eq!(sustained(0.2), 1);
+        assert_eq!(sustained(1e-7), MAX_REPEAT);
+        assert_eq!(sustained(0.0), MAX_REPEAT);
+        assert_eq!(sustained(f64::NAN), 1);
+    }
 }
