@@ -402,6 +402,10 @@ fn camera_casts(
         let c = cast(v, 1)?;
         reps[k] = sustained(c.kernel_s.unwrap_or(c.gpu_s));
     }
+    tracing::info!(
+        ?reps,
+        "gpu camera casts per timed submission (rows, tiles, beam)"
+    );
     warm_up(|| {
         for (k, v) in VARIANTS.into_iter().enumerate() {
             cast(v, reps[k])?;
