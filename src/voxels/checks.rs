@@ -366,33 +366,53 @@ impl CastPair<'_> {
     /// on the ray, which may lie beyond that box.
     fn lod_tie(&self, i: usize, margin: f64) -> bool {
         let (g, c) = (self.gpu, self.cpu);
-        let axis = |n: [f32; 3]| n.iter().position(|&x| x != 0.0);
-        let (Some(_), Some(a), Some(b)) = (self.p.lod, axis(g.normal[i]), axis(c.normal[i])) else {
+        if self.p.lod.is_none() {
             return false;
-        };
+        }
         let (o, d) = (self.o[i].map(|x| x as f64), self.d[i].map(|x| x as f64));
         let slack = margin + self.rel_slack(i, c.t[i] as f64);
         let v = g.leaf[i].map(|x| x as u32);
-        box_face_tie((self.scene.1, self.gpu_level[i]), v, o, d, [a, b], slack)
+        let normals = [g.normal[i], c.normal[i]];
+        box_face_tie((self.scene.1, self.gpu_level[i]), v, o, d, normals, slack)
     }
 
     /// Per ray: 1 where the two t's are judged, else 0. Not where the
-    /// leaves or the normals differ excused: the two t's are then of
-    /// different voxels or faces (an H200 against the CPU on incoherent
-    /// Menger rays at excused normal ties: 3.0e-6 and 1.9e-5 apart
-    /// relative, over `voxel_t_f32`); nor at a contour slab entry within
-    /// the plane's rounding ([`Self::slab_t_tie`]). `excused` and
-    /// `normal_ok` are [`Self::leaf_ties`]' and [`Self::normal_ties`]'.
+    /// leaves differ excused (the t's of different voxels); nor at an
+    /// excused normal tie whose t's are within the two faces' rounding of
+    /// each other ([`Self::face_t_tie`]: each cast's t is its own face's;
+    /// an H200 against the CPU on incoherent Menger rays: 3.0e-6 and
+    /// 1.9e-5 apart relative, over `voxel_t_f32`); nor at a contour slab
+    /// entry within the plane's rounding ([`Self::slab_t_tie`]). `excused`
+    /// and `normal_ok` are [`Self::leaf_ties`]' and [`Self::normal_ties`]'.
     fn t_not_excused(&self, margin: f64, excused: &[u8], normal_ok: &[u8]) -> Vec<u8> {
         (0..excused.len())
-            .map(|i| 1 - (excused[i] | normal_ok[i] | self.slab_t_tie(i, margin) as u8))
+            .map(|i| {
+                let face = normal_ok[i] == 1 && self.face_t_tie(i, margin);
+                1 - (excused[i] | face as u8 | self.slab_t_tie(i, margin) as u8)
+            })
             .collect()
+    }
+
+    /// Whether ray `i`'s two t's, each from the face its cast's normal
+    /// names, are within those faces' rounding of each other: the slack of
+    /// [`Self::normal_ties`] over the ray's rate across each face,
+    /// `slack (1 / |d_a| + 1 / |d_b|)`.
+    fn face_t_tie(&self, i: usize, margin: f64) -> bool {
+        let (g, c) = (self.gpu, self.cpu);
+        let axis = |n: [f32; 3]| n.iter().position(|&x| x != 0.0);
+        let (Some(a), Some(b)) = (axis(g.normal[i]), axis(c.normal[i])) else {
+            return false;
+        };
+        let rate = |a: usize| (self.d[i][a] as f64).abs();
+        let slack = margin + self.rel_slack(i, c.t[i] as f64);
+        let bound = slack / rate(a) + slack / rate(b);
+        (g.t[i] as f64 - c.t[i] as f64).abs() <= bound
     }
 
     /// Whether ray `i` of a contour cast, both casts hitting the same leaf
     /// through the same face, has its two t's at the leaf's slab entry
     /// within the slab plane's rounding: `margin` plus [`TIE_REL`] of
-    /// `|o| + t |d|`, over `|n . d|` ([`slab_entry_t_tie`]). An H200's worst
+    /// `|o| + t |d|`, over `|n . d|` of the exact entry ([`slab_entry_t_tie`]). An H200's worst
     /// over 32,073 slab-entry rays of the 512^2 sphere, `|dt| |n . d| /
     /// (|o| + t |d|)`, was 1.13e-7, an eighth of `TIE_REL`.
     fn slab_t_tie(&self, i: usize, margin: f64) -> bool {
@@ -409,8 +429,8 @@ impl CastPair<'_> {
             .and_then(|k| cs.get(k as usize).copied())
             .unwrap_or(0);
         let slack = margin + self.rel_slack(i, c.t[i] as f64);
-        let dt = (g.t[i] as f64 - c.t[i] as f64).abs();
-        slab_entry_t_tie(code, self.scene.1, v, o, d, slack, dt)
+        let ts = [g.t[i] as f64, c.t[i] as f64];
+        slab_entry_t_tie(code, self.scene.1, v, (o, d), slack, ts)
     }
 }
 
@@ -562,6 +582,14 @@ mod tests {
         let (normal_ok, _) = pair.normal_ties(margin);
         assert_eq!((&excused[..], &normal_ok[..]), (&[0, 0][..], &[1, 1][..]));
         assert_eq!(pair.t_not_excused(margin, &excused, &normal_ok), [0, 0]);
+        // The same ties with the GPU's t 1e-3 off: past the faces'
+        // rounding, judged.
+        let off = VoxelHits {
+            t: gpu.t.iter().map(|t| t + 1e-3).collect(),
+            ..gpu.clone()
+        };
+        let apart = CastPair { gpu: &off, ..pair };
+        assert_eq!(apart.t_not_excused(margin, &excused, &normal_ok), [1, 1]);
         let t_apart = VoxelHits {
             t: cpu.t.clone(),
             ..gpu.clone()

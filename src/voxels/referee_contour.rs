@@ -100,50 +100,69 @@ pub fn slab_tie(
     (lower - upper).abs() <= lower_err + upper_err
 }
 
+/// The axis of an entry face's normal `n` (a unit axis vector pointing
+/// back along `d`), `None` for any other vector.
+fn entry_axis(n: [f32; 3], d: [f64; 3]) -> Option<usize> {
+    let a = n.iter().position(|&x| x != 0.0)?;
+    let axis_only = (0..3).all(|b| b == a || n[b] == 0.0);
+    (axis_only && d[a] != 0.0 && n[a] as f64 == -d[a].signum()).then_some(a)
+}
+
 /// Whether `o + t d` enters the box of the level-`level` voxel that holds
 /// the depth-`depth` voxel `voxel` through an edge or corner within
-/// rounding: the entry times of the faces of both `axes` (the faces two
-/// casts' normals name) are within `slack / |d_a|` of the box's entry time.
-/// The cube referee judges the finest solid voxel on the ray; an LOD cut
-/// stops at a coarser box, whose edges that voxel need not share (an H200
-/// cut at a level-6 box entered 3.2e-7 apart in t through its y and z
-/// faces, where the referee's voxel lay beyond the box, no tie).
+/// rounding, between the two faces `normals` name: two different entry
+/// faces (each normal a unit axis vector against `d`) whose entry times are
+/// within `slack / |d_a|` of the box's entry time. The cube referee judges
+/// the finest solid voxel on the ray; an LOD cut stops at a coarser box,
+/// whose edges that voxel need not share (an H200 cut at a level-6 box
+/// entered 3.2e-7 apart in t through its y and z faces, where the
+/// referee's voxel lay beyond the box, no tie).
 pub fn box_face_tie(
     (depth, level): (u32, u32),
     voxel: [u32; 3],
     o: [f64; 3],
     d: [f64; 3],
-    axes: [usize; 2],
+    normals: [[f32; 3]; 2],
     slack: f64,
 ) -> bool {
+    let (Some(a), Some(b)) = (entry_axis(normals[0], d), entry_axis(normals[1], d)) else {
+        return false;
+    };
+    if a == b {
+        return false;
+    }
     let level = level.min(depth);
     let s = 2.0 / (1u64 << level) as f64;
     let lo = voxel.map(|i| -1.0 + (i >> (depth - level)) as f64 * s);
     let ((te, _), _) = box_interval(lo, s, o, d);
-    axes.iter().all(|&a| {
+    [a, b].iter().all(|&a| {
         let x = if d[a] > 0.0 { lo[a] } else { lo[a] + s };
         d[a] != 0.0 && te - (x - o[a]) / d[a] <= slack / d[a].abs()
     })
 }
 
-/// Whether two contour casts' t in the depth-`depth` voxel `voxel`, `dt`
-/// apart, are both contour `v`'s slab entry within its rounding: the slab
-/// is entered no earlier than the box (within that rounding), so t is the
-/// slab's, and `dt <= slack / |n . d|`, the slab plane's offset
-/// `n . (o - c) - p s` rounded by about `slack` world units (it cancels
-/// terms of size |o| to leave a few hundredths) over the ray's rate across
-/// the plane. On grazing slabs this is far over `voxel_t_f32`: an H200
-/// against the CPU, |n . d| 0.012 to 0.07, t 1.3e-6 to 2.4e-6 apart
-/// relative. `false` for `v == 0` (no contour) and a ray parallel to the
-/// plane.
+/// The least `|n . d|` [`slab_entry_t_tie`] divides by: below it a slab
+/// entry's rounding is not excused further (the H200's grazing slab entries
+/// went down to 0.012).
+pub const MIN_SLAB_RATE: f64 = 0.01;
+
+/// Whether two contour casts' t in the depth-`depth` voxel `voxel` are
+/// both contour `v`'s slab entry within its rounding: the exact (f64) slab
+/// entry `ta` is no earlier than the box's (within that rounding), so t is
+/// the slab's, and each t is within `slack / |n . d|` of `ta`, the slab
+/// plane's offset `n . (o - c) - p s` rounded by about `slack` world units
+/// (it cancels terms of size |o| to leave a few hundredths) over the ray's
+/// rate across the plane, that rate taken as at least [`MIN_SLAB_RATE`]. On
+/// grazing slabs this is far over `voxel_t_f32`: an H200 against the CPU,
+/// |n . d| 0.012 to 0.07, t 1.3e-6 to 2.4e-6 apart relative. `false` for
+/// `v == 0` (no contour) and a ray parallel to the plane.
 pub fn slab_entry_t_tie(
     v: u32,
     depth: u32,
     voxel: [u32; 3],
-    o: [f64; 3],
-    d: [f64; 3],
+    (o, d): ([f64; 3], [f64; 3]),
     slack: f64,
-    dt: f64,
+    ts: [f64; 2],
 ) -> bool {
     if v == 0 {
         return false;
@@ -153,7 +172,8 @@ pub fn slab_entry_t_tie(
     let (ta, _) = slab_interval(v, c, s, o, d);
     let (n, _, _) = super::contour::decode::<f64>(v);
     let nd = (n[0] * d[0] + n[1] * d[1] + n[2] * d[2]).abs();
-    nd > 0.0 && ta + slack / nd >= te && dt <= slack / nd
+    let tol = slack / nd.max(MIN_SLAB_RATE);
+    nd > 0.0 && ta + tol >= te && ts.iter().all(|t| (t - ta).abs() <= tol)
 }
 
 #[cfg(test)]
@@ -213,12 +233,22 @@ mod tests {
         let d = [a, b, 0.0];
         let o = [-1.0 - 2.0 * a, -1.0 - 2.0 * b, -0.9];
         let slack = 2f64.powi(-22);
-        assert!(box_face_tie((3, 1), [1, 1, 0], o, d, [0, 1], slack));
-        assert!(!box_face_tie((3, 3), [1, 1, 0], o, d, [0, 1], slack));
-        assert!(box_face_tie((3, 3), [1, 1, 0], o, d, [0, 0], slack));
+        let (x, y, z) = ([-1.0, 0.0, 0.0], [0.0, -1.0, 0.0], [0.0, 0.0, -1.0]);
+        assert!(box_face_tie((3, 1), [1, 1, 0], o, d, [x, y], slack));
+        assert!(!box_face_tie((3, 3), [1, 1, 0], o, d, [x, y], slack));
         assert!(
-            !box_face_tie((3, 1), [1, 1, 0], o, d, [0, 2], slack),
+            !box_face_tie((3, 1), [1, 1, 0], o, d, [x, z], slack),
             "z face"
+        );
+        // One face named twice, or a face the ray leaves by: no edge tie.
+        assert!(
+            !box_face_tie((3, 1), [1, 1, 0], o, d, [x, x], slack),
+            "one face"
+        );
+        let flipped = [1.0, 0.0, 0.0];
+        assert!(
+            !box_face_tie((3, 1), [1, 1, 0], o, d, [flipped, y], slack),
+            "exit face"
         );
     }
 
@@ -228,17 +258,33 @@ mod tests {
         // past the box entry; |n . d| = 0.96, so the bound is 2.5e-7.
         let slack = 2f64.powi(-22);
         let (v, o, d) = grazing(0.0);
-        assert!(slab_entry_t_tie(v, 3, [3, 3, 3], o, d, slack, 1e-7));
-        assert!(!slab_entry_t_tie(v, 3, [3, 3, 3], o, d, slack, 1e-6));
-        assert!(
-            !slab_entry_t_tie(0, 3, [3, 3, 3], o, d, slack, 0.0),
-            "no contour"
-        );
+        let entry = |v, o, d| {
+            let (s, _, c) = voxel_box(3, [3, 3, 3]);
+            slab_interval(v, c, s, o, d).0
+        };
+        let ta = entry(v, o, d);
+        let tie = |v, (o, d), ts| slab_entry_t_tie(v, 3, [3, 3, 3], (o, d), slack, ts);
+        assert!(tie(v, (o, d), [ta + 1e-7, ta - 1e-7]));
+        assert!(!tie(v, (o, d), [ta + 1e-6, ta]));
+        assert!(!tie(0, (o, d), [ta, ta]), "no contour");
+        // Nearly parallel to a z slab (|n . d| 1e-7): its lower plane
+        // z = c + (p - h) s (about -0.2375) met 0.1 after the box's -x face
+        // at t = 0.75. Both casts at the slab entry tie; one at the box's
+        // face does not, however grazing the slab ([`MIN_SLAB_RATE`]).
+        let z = crate::voxels::contour::encode([0.0, 0.0, 1.0], 0.0, 0.45);
+        let (_, p, h) = crate::voxels::contour::decode::<f64>(z);
+        let lower = -0.125 + (p - h) * 0.25;
+        let (o, d) = ([-1.0, -0.125, lower - 1e-7 * 0.85], [1.0, 0.0, 1e-7]);
+        let ta = entry(z, o, d);
+        assert!((ta - 0.85).abs() < 1e-6, "{ta}");
+        assert!(tie(z, (o, d), [ta, ta]));
+        assert!(!tie(z, (o, d), [0.75, ta]), "box face");
         // A slab of normal z, 0.45 edges either side of the centre: a ray
         // entering the box's -x face 0.15 edges above the centre is in the
         // slab already, its t the face's: no slab entry.
         let v = crate::voxels::contour::encode([0.0, 0.0, 1.0], 0.0, 0.45);
         let (o, d) = ([-1.0, -0.125, -0.125], [1.0, 0.0, 0.05]);
-        assert!(!slab_entry_t_tie(v, 3, [3, 3, 3], o, d, slack, 0.0), "face");
+        let te = (-0.25 - o[0]) / d[0];
+        assert!(!tie(v, (o, d), [te, te]), "face");
     }
 }
