@@ -284,16 +284,20 @@ fn differing<F: Real>(a: &VoxelHits<F>, b: &VoxelHits<F>) -> u64 {
 
 /// The GPU camera cast in three variants ([`VARIANTS`]: both
 /// [`ThreadOrder`]s from `near`, and tiles from beam starts), per variant:
-/// seconds a cast (submit to readback; the kernels' where the adapter has
-/// timestamps); the fraction of lane-iterations 32-lane warps spend on work
+/// seconds a cast (submit to readback of one cast; per cast of a sustained
+/// submission, the kernels' clock where the adapter has timestamps); the fraction of lane-iterations 32-lane warps spend on work
 /// in either order ([`warp_efficiency`] of the tiled cast's own
 /// iteration counts); the rays whose results differ between the orders
 /// (none: only the thread moves) and between the beam and `near` starts
 /// other than in iterations and node words read (none: the beam start never
 /// passes a hit); whether the beam ran (the adapter has f64).
 struct CameraCasts {
+    /// Submit to readback of one cast alone.
     gpu_s: [f64; 3],
+    /// Per cast of a sustained submission, the kernels' clock (where the
+    /// adapter has timestamps) and that or else the submission's wall clock.
     kernel_s: [Option<f64>; 3],
+    sustained_s: [f64; 3],
     warp32: [f64; 2],
     order_differing: u64,
     beam_differing: u64,
@@ -321,7 +325,7 @@ impl CameraCasts {
     /// `{s}_gpu_coherent_beam_differing_rays`,
     /// `{s}_gpu_coherent_beam_mean_iters`, `{s}_gpu_coherent_beam_ran`.
     fn report(&self, s: &str, out: &mut Outputs) {
-        let secs = |k: usize| self.kernel_s[k].unwrap_or(self.gpu_s[k]);
+        let secs = |k: usize| self.sustained_s[k];
         let clock = if self.kernel_s[0].is_some() {
             "kernel_"
         } else {
@@ -380,6 +384,7 @@ fn camera_casts(
     let mut cc = CameraCasts {
         gpu_s: [0.0; 3],
         kernel_s: [Some(0.0); 3],
+        sustained_s: [0.0; 3],
         warp32: [0.0; 2],
         order_differing: 0,
         beam_differing: 0,
@@ -396,28 +401,36 @@ fn camera_casts(
         };
         g.cast_camera(cam, gen, &q, false, budget)
     };
-    // One cast of each variant sizes its submissions.
+    // Each variant's submissions sized from a cast of it, and sized again
+    // once warm (a cold GPU's casts may run at its idle clock, fewer of
+    // the warm ones filling the span).
     let mut reps = [1; VARIANTS.len()];
-    for (k, v) in VARIANTS.into_iter().enumerate() {
-        let c = cast(v, 1)?;
-        reps[k] = sustained(c.kernel_s.unwrap_or(c.gpu_s));
-    }
-    tracing::info!(
-        ?reps,
-        "gpu camera casts per timed submission (rows, tiles, beam)"
-    );
+    let size = |reps: &mut [u32; 3]| -> Result<()> {
+        for (k, v) in VARIANTS.into_iter().enumerate() {
+            let c = cast(v, reps[k])?;
+            reps[k] = sustained(c.kernel_s.unwrap_or(c.gpu_s));
+        }
+        Ok(())
+    };
+    size(&mut reps)?;
     warm_up(|| {
         for (k, v) in VARIANTS.into_iter().enumerate() {
             cast(v, reps[k])?;
         }
         Ok(())
     })?;
+    size(&mut reps)?;
+    tracing::info!(
+        ?reps,
+        "gpu camera casts per timed submission (rows, tiles, beam)"
+    );
     let mut last: [Option<GpuCast>; 3] = [None, None, None];
     for round in 0..ROUNDS as usize {
         for j in 0..VARIANTS.len() {
             let k = (round + j) % VARIANTS.len();
+            cc.gpu_s[k] += cast(VARIANTS[k], 1)?.gpu_s;
             let c = cast(VARIANTS[k], reps[k])?;
-            cc.gpu_s[k] += c.gpu_s;
+            cc.sustained_s[k] += c.kernel_s.unwrap_or(c.gpu_s);
             cc.kernel_s[k] = cc.kernel_s[k].zip(c.kernel_s).map(|(a, b)| a + b);
             last[k] = Some(c);
         }
@@ -427,6 +440,7 @@ fn camera_casts(
     };
     let r = ROUNDS as f64;
     cc.gpu_s = cc.gpu_s.map(|s| s / r);
+    cc.sustained_s = cc.sustained_s.map(|s| s / r);
     cc.kernel_s = cc.kernel_s.map(|s| s.map(|s| s / r));
     let iters: Vec<u32> = tiles.hits.iter().map(|h| h.iters).collect();
     cc.rays = iters.len() as f64;
@@ -595,14 +609,19 @@ pub fn cpu_vs_gpu(
                 cc.report(sname, out);
                 (cc.gpu_s[1], cc.kernel_s[1], tiles)
             } else {
-                let one = g.cast_rays(&packed, &gpu_params(&p), budget)?;
-                let q = GpuCastParams {
-                    repeat: sustained(one.kernel_s.unwrap_or(one.gpu_s)),
-                    ..gpu_params(&p)
+                // Sized cold, warmed, sized again (as `camera_casts`); submit
+                // to readback from one cast alone.
+                let once = gpu_params(&p);
+                let per_cast = |c: &GpuCast| c.kernel_s.unwrap_or(c.gpu_s);
+                let mut q = GpuCastParams {
+                    repeat: sustained(per_cast(&g.cast_rays(&packed, &once, budget)?)),
+                    ..once
                 };
                 warm_up(|| g.cast_rays(&packed, &q, budget).map(drop))?;
+                q.repeat = sustained(per_cast(&g.cast_rays(&packed, &q, budget)?));
+                let single = g.cast_rays(&packed, &once, budget)?;
                 let gc = g.cast_rays(&packed, &q, budget)?;
-                (gc.gpu_s, gc.kernel_s, gc)
+                (single.gpu_s, gc.kernel_s, gc)
             };
             let m = gc.hits.len() as f64;
             out.metric(
