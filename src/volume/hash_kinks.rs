@@ -76,7 +76,9 @@ pub fn dhash_smooth(
                     smooth[e..e + m.features].fill(0);
                 }
             }
-            excuse_unit(&m, k.layer, k.unit, &mut smooth);
+            for (layer, unit) in k.units {
+                excuse_unit(&m, layer, unit, &mut smooth);
+            }
         }
     }
     Ok((smooth, kinks))

@@ -120,14 +120,13 @@ impl<F: Real> HashMlp<F> {
     }
 }
 
-/// A point where the network sits on a ReLU kink ([`HashMlp::near_kink`]):
-/// its corners and the unit (`layer`, `unit`; the density output is the
-/// last layer's unit 0).
-#[derive(Clone, Copy, Debug)]
+/// A point where the network sits on ReLU kinks ([`HashMlp::near_kink`]):
+/// its corners and each such unit, `(layer, unit)` (the density output is
+/// the last layer's unit 0).
+#[derive(Clone, Debug)]
 pub struct Kink<F> {
     pub corners: Corners<F>,
-    pub layer: usize,
-    pub unit: usize,
+    pub units: Vec<(usize, usize)>,
 }
 
 impl<F: Real> HashMlp<F> {
@@ -140,7 +139,8 @@ impl<F: Real> HashMlp<F> {
     /// vol_hash_init.yaml and so dropped that sample's whole gradient
     /// through the unit from every table value it touches. Returns the
     /// point's corners (the table rows whose gradients the kink moves) and
-    /// the unit (whose fan-in and bias gradients move too).
+    /// every unit within the margin (whose fan-in and bias gradients move
+    /// too).
     #[allow(clippy::needless_range_loop)] // index loops mirror the forward's order
     pub fn near_kink(&self, x: [F; 3], margin: F) -> Option<Kink<F>> {
         let c = self.corners(x);
@@ -149,6 +149,7 @@ impl<F: Real> HashMlp<F> {
         let mut z = [[F::zero(); MAX_WIDTH]; MAX_HIDDEN + 1];
         self.mlp(&h, &mut z);
         let nl = self.layers.len();
+        let mut kinked = Vec::new();
         for (q, layer) in self.layers.iter().enumerate() {
             let last = q + 1 == nl;
             let units = match (last, self.density) {
@@ -168,15 +169,14 @@ impl<F: Real> HashMlp<F> {
                     mag += (*w * a).abs();
                 }
                 if z[q][o].abs() <= margin * mag {
-                    return Some(Kink {
-                        corners: c,
-                        layer: q,
-                        unit: o,
-                    });
+                    kinked.push((q, o));
                 }
             }
         }
-        None
+        (!kinked.is_empty()).then_some(Kink {
+            corners: c,
+            units: kinked,
+        })
     }
 }
 
@@ -214,7 +214,11 @@ mod tests {
         m.layers[0].b[3] -= z[0][3];
         let k = m.near_kink(x, 1e-6).expect("unit 3 sits on its kink");
         assert_eq!(k.corners.rows, m.corners(x).rows);
-        assert_eq!((k.layer, k.unit), (0, 3));
+        assert_eq!(k.units, [(0, 3)]);
+        // Unit 5 on its kink too: both reported.
+        m.layers[0].b[5] -= z[0][5];
+        assert_eq!(m.near_kink(x, 1e-6).unwrap().units, [(0, 3), (0, 5)]);
+        m.layers[0].b[5] += z[0][5];
         // Unit 3 moved 1e-3 of its terms' magnitudes off the kink: not flagged.
         m.layers[0].b[3] += 1e-3;
         assert!(m.near_kink(x, 1e-6).is_none());
