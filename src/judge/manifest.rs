@@ -378,14 +378,8 @@ fn validate_case(
         if let Some(m) = params.as_mapping() {
             for k in m.keys() {
                 let k = k.as_str().unwrap_or("?");
-                if !entry.params.contains(&k) {
-                    return err(
-                        &format!("params.{k}"),
-                        format!(
-                            "{op} takes no parameter {k:?} (it takes {:?})",
-                            entry.params
-                        ),
-                    );
+                if let Some(why) = entry.refuses_param(k) {
+                    return err(&format!("params.{k}"), why);
                 }
             }
         } else if !params.is_null() {

@@ -190,6 +190,17 @@ impl OpEntry {
         })
     }
 
+    /// `None` when this operation takes parameter `key`, else why not
+    /// (naming the ones it takes).
+    pub fn refuses_param(&self, key: &str) -> Option<String> {
+        (!self.params.contains(&key)).then(|| {
+            format!(
+                "{} takes no parameter {key:?} (it takes {:?})",
+                self.name, self.params
+            )
+        })
+    }
+
     /// Runs the operation, refusing an unsupported backend or precision.
     pub fn call(&self, ctx: &OpCtx) -> Result<Outputs> {
         if let Some(why) = self.refuses(ctx.backend, ctx.precision) {

@@ -62,8 +62,7 @@ pub fn render(req: &RenderRequest) -> Result<Outputs> {
                 "give the gradient image with --grad-from",
             ));
         }
-        if !op.params.contains(&k.as_str()) {
-            let why = format!("{name} takes no parameter {k:?} (it takes {:?})", op.params);
+        if let Some(why) = op.refuses_param(&k) {
             return Err(Error::invalid(at, why));
         }
         params.insert(k.into(), v);
