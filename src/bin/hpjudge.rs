@@ -160,7 +160,7 @@ struct RenderArgs {
     #[arg(long = "set", value_name = "KEY=VALUE")]
     set: Vec<String>,
     /// A parameter of the renderer's `render` operation, as in a manifest case's
-    /// `params:`: key=value (`hpjudge list --ops` names them; e.g. voxels `cast=lanes`, `beam=false`).
+    /// `params:`: key=value (`hpjudge list --ops` names them; e.g. voxels `cast=lanes`, `beam=true`).
     #[arg(long = "param", value_name = "KEY=VALUE")]
     param: Vec<String>,
     /// Replay rays from a (N, 9) .npy written by --dump-failing.

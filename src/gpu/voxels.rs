@@ -481,6 +481,8 @@ impl<'c> GpuOctree<'c> {
             max_iter: self.kernel_max_iter(p.max_iter),
             beam: false,
         };
+        let reps = p.repeat.max(1);
+        let per = 1.0 / reps as f64;
         for chunk in rays.chunks(batch_rays(self.ctx) as usize) {
             let m = chunk.len() as u64;
             let vu = uniform(self.ctx, "voxel params", &self.params(p, m as u32, false)?);
@@ -501,11 +503,9 @@ impl<'c> GpuOctree<'c> {
                 n: m,
                 wg: 64,
             };
-            let reps = p.repeat.max(1);
             let passes = vec![pass; reps as usize];
             let rb = run_timed(self.ctx, "cast_rays", &passes, &[&hits])?;
             out.hits.extend(rb.take::<GpuVoxelHit>(0, m as usize)?);
-            let per = 1.0 / reps as f64;
             out.gpu_s += rb.gpu_s * per;
             out.kernel_s = out.kernel_s.zip(rb.kernel_s).map(|(a, b)| a + b * per);
         }

@@ -410,11 +410,11 @@ impl CastPair<'_> {
     }
 
     /// Whether ray `i` of a contour cast, both casts hitting the same leaf
-    /// through the same face, has its two t's at the leaf's slab entry
+    /// through the same face, has both t's at the leaf's exact slab entry
     /// within the slab plane's rounding: `margin` plus [`TIE_REL`] of
-    /// `|o| + t |d|`, over `|n . d|` of the exact entry ([`slab_entry_t_tie`]). An H200's worst
-    /// over 32,073 slab-entry rays of the 512^2 sphere, `|dt| |n . d| /
-    /// (|o| + t |d|)`, was 1.13e-7, an eighth of `TIE_REL`.
+    /// `|o| + t |d|`, over `|n . d|` ([`slab_entry_t_tie`]). An H200's
+    /// worst over 32,073 slab-entry rays of the 512^2 sphere, `|dt| |n . d|
+    /// / (|o| + t |d|)`, was 1.13e-7, an eighth of `TIE_REL`.
     fn slab_t_tie(&self, i: usize, margin: f64) -> bool {
         let (g, c) = (self.gpu, self.cpu);
         let Some((tree, cs)) = self.contours else {

@@ -284,20 +284,20 @@ fn differing<F: Real>(a: &VoxelHits<F>, b: &VoxelHits<F>) -> u64 {
 
 /// The GPU camera cast in three variants ([`VARIANTS`]: both
 /// [`ThreadOrder`]s from `near`, and tiles from beam starts), per variant:
-/// seconds a cast (submit to readback of one cast; per cast of a sustained
-/// submission, the kernels' clock where the adapter has timestamps); the fraction of lane-iterations 32-lane warps spend on work
-/// in either order ([`warp_efficiency`] of the tiled cast's own
-/// iteration counts); the rays whose results differ between the orders
+/// seconds a cast (submit to readback of one cast alone; per cast of a
+/// sustained submission, [`warm_repeat`]); the fraction of lane-iterations
+/// 32-lane warps spend on work in either order ([`warp_efficiency`] of the
+/// tiled cast's own iteration counts); the rays whose results differ between the orders
 /// (none: only the thread moves) and between the beam and `near` starts
 /// other than in iterations and node words read (none: the beam start never
 /// passes a hit); whether the beam ran (the adapter has f64).
 struct CameraCasts {
     /// Submit to readback of one cast alone.
     gpu_s: [f64; 3],
-    /// Per cast of a sustained submission, the kernels' clock (where the
-    /// adapter has timestamps) and that or else the submission's wall clock.
-    kernel_s: [Option<f64>; 3],
+    /// Per cast of a sustained submission: the kernels' clock where the
+    /// adapter has timestamps (`kernel_clock`), else the submission's wall.
     sustained_s: [f64; 3],
+    kernel_clock: bool,
     warp32: [f64; 2],
     order_differing: u64,
     beam_differing: u64,
@@ -326,11 +326,7 @@ impl CameraCasts {
     /// `{s}_gpu_coherent_beam_mean_iters`, `{s}_gpu_coherent_beam_ran`.
     fn report(&self, s: &str, out: &mut Outputs) {
         let secs = |k: usize| self.sustained_s[k];
-        let clock = if self.kernel_s[0].is_some() {
-            "kernel_"
-        } else {
-            ""
-        };
+        let clock = if self.kernel_clock { "kernel_" } else { "" };
         for (k, name) in [(0, "rows"), (2, "beam")] {
             out.metric(
                 &format!("{s}_gpu_coherent_{name}_{clock}mrays_per_s"),
@@ -372,9 +368,9 @@ impl CameraCasts {
 
 /// [`ROUNDS`] interleaved rounds of the camera cast in the three
 /// [`VARIANTS`] (which goes first rotates; `p.order`, `p.beam` and
-/// `p.repeat` are ignored), each timed over submissions of [`sustained`]
-/// casts, after [`warm_up`]; seconds a cast averaged over the rounds, and
-/// the last tiled cast from `near`.
+/// `p.repeat` are ignored), each timed over submissions of
+/// [`warm_repeat`] casts; seconds a cast averaged over the rounds, and the
+/// last tiled cast from `near`.
 fn camera_casts(
     g: &GpuOctree,
     (cam, gen): (&Camera, &RayGen),
@@ -383,8 +379,8 @@ fn camera_casts(
 ) -> Result<(CameraCasts, GpuCast)> {
     let mut cc = CameraCasts {
         gpu_s: [0.0; 3],
-        kernel_s: [Some(0.0); 3],
         sustained_s: [0.0; 3],
+        kernel_clock: true,
         warp32: [0.0; 2],
         order_differing: 0,
         beam_differing: 0,
@@ -401,25 +397,10 @@ fn camera_casts(
         };
         g.cast_camera(cam, gen, &q, false, budget)
     };
-    // Each variant's submissions sized from a cast of it, and sized again
-    // once warm (a cold GPU's casts may run at its idle clock, fewer of
-    // the warm ones filling the span).
     let mut reps = [1; VARIANTS.len()];
-    let size = |reps: &mut [u32; 3]| -> Result<()> {
-        for (k, v) in VARIANTS.into_iter().enumerate() {
-            let c = cast(v, reps[k])?;
-            reps[k] = sustained(c.kernel_s.unwrap_or(c.gpu_s));
-        }
-        Ok(())
-    };
-    size(&mut reps)?;
-    warm_up(|| {
-        for (k, v) in VARIANTS.into_iter().enumerate() {
-            cast(v, reps[k])?;
-        }
-        Ok(())
-    })?;
-    size(&mut reps)?;
+    for (k, v) in VARIANTS.into_iter().enumerate() {
+        reps[k] = warm_repeat(|n| cast(v, n))?;
+    }
     tracing::info!(
         ?reps,
         "gpu camera casts per timed submission (rows, tiles, beam)"
@@ -430,8 +411,8 @@ fn camera_casts(
             let k = (round + j) % VARIANTS.len();
             cc.gpu_s[k] += cast(VARIANTS[k], 1)?.gpu_s;
             let c = cast(VARIANTS[k], reps[k])?;
-            cc.sustained_s[k] += c.kernel_s.unwrap_or(c.gpu_s);
-            cc.kernel_s[k] = cc.kernel_s[k].zip(c.kernel_s).map(|(a, b)| a + b);
+            cc.sustained_s[k] += per_cast(&c);
+            cc.kernel_clock &= c.kernel_s.is_some();
             last[k] = Some(c);
         }
     }
@@ -441,7 +422,6 @@ fn camera_casts(
     let r = ROUNDS as f64;
     cc.gpu_s = cc.gpu_s.map(|s| s / r);
     cc.sustained_s = cc.sustained_s.map(|s| s / r);
-    cc.kernel_s = cc.kernel_s.map(|s| s.map(|s| s / r));
     let iters: Vec<u32> = tiles.hits.iter().map(|h| h.iters).collect();
     cc.rays = iters.len() as f64;
     cc.beam_iters = mean(beam.hits.iter().map(|h| h.iters as f64));
@@ -484,6 +464,22 @@ fn sustained(secs: f64) -> u32 {
     } else {
         1
     }
+}
+
+/// A cast's seconds: the kernels' clock where there is one, else submit to
+/// readback (per cast of its submission).
+fn per_cast(c: &GpuCast) -> f64 {
+    c.kernel_s.unwrap_or(c.gpu_s)
+}
+
+/// The casts a timed submission of `cast(n)` (n casts back to back) holds
+/// to keep the GPU busy for [`SUSTAIN_S`]: sized from one cast, warmed at
+/// that size ([`warm_up`]), sized again (a cold GPU's casts may run at its
+/// idle clock, so fewer of the warm ones would fill the span).
+fn warm_repeat(mut cast: impl FnMut(u32) -> Result<GpuCast>) -> Result<u32> {
+    let reps = sustained(per_cast(&cast(1)?));
+    warm_up(|| cast(reps).map(drop))?;
+    Ok(sustained(per_cast(&cast(reps)?)))
 }
 
 /// Runs `cast` at least once and until [`WARM_S`] have passed.
@@ -607,20 +603,16 @@ pub fn cpu_vs_gpu(
             let (gpu_s, kernel_s, gc) = if set == "coherent" {
                 let (cc, tiles) = camera_casts(&g, (cam, gen), &gpu_params(&p), budget)?;
                 cc.report(sname, out);
-                (cc.gpu_s[1], cc.kernel_s[1], tiles)
+                let kernel_s = cc.kernel_clock.then_some(cc.sustained_s[1]);
+                (cc.gpu_s[1], kernel_s, tiles)
             } else {
-                // Sized cold, warmed, sized again (as `camera_casts`); submit
-                // to readback from one cast alone.
+                // Timed over sustained submissions ([`warm_repeat`]);
+                // submit to readback from one cast alone.
                 let once = gpu_params(&p);
-                let per_cast = |c: &GpuCast| c.kernel_s.unwrap_or(c.gpu_s);
-                let mut q = GpuCastParams {
-                    repeat: sustained(per_cast(&g.cast_rays(&packed, &once, budget)?)),
-                    ..once
-                };
-                warm_up(|| g.cast_rays(&packed, &q, budget).map(drop))?;
-                q.repeat = sustained(per_cast(&g.cast_rays(&packed, &q, budget)?));
-                let single = g.cast_rays(&packed, &once, budget)?;
-                let gc = g.cast_rays(&packed, &q, budget)?;
+                let cast = |repeat| g.cast_rays(&packed, &GpuCastParams { repeat, ..once }, budget);
+                let reps = warm_repeat(cast)?;
+                let single = cast(1)?;
+                let gc = cast(reps)?;
                 (single.gpu_s, gc.kernel_s, gc)
             };
             let m = gc.hits.len() as f64;
