@@ -68,15 +68,15 @@ pub fn dhash_smooth(
     for k in 0..s.len() {
         let r = s.ray_id[k] as usize;
         let x = [0, 1, 2].map(|a| rays.o[r][a] + s.t[k] * rays.d[r][a]);
-        if let Some(k) = m.near_kink(x, margin) {
+        if let Some(kink) = m.near_kink(x, margin) {
             kinks += 1;
-            for rows in &k.corners.rows[..m.levels.len()] {
+            for rows in &kink.corners.rows[..m.levels.len()] {
                 for &row in rows {
                     let e = row as usize * m.features;
                     smooth[e..e + m.features].fill(0);
                 }
             }
-            for (layer, unit) in k.units {
+            for (layer, unit) in kink.units {
                 excuse_unit(&m, layer, unit, &mut smooth);
             }
         }
