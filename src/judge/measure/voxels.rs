@@ -119,7 +119,8 @@ pub fn per_level(v: &[u64]) -> Result<Tensor> {
 }
 
 /// `voxels.gpu_bench`: thread count, octree and DAG metrics and
-/// [`cpu_vs_gpu`] of both structures on `sets`.
+/// [`cpu_vs_gpu`] of both structures on `sets`, then [`differing_totals`]
+/// as tensors a case can gate.
 pub fn gpu_bench(
     sc: &VoxelScene,
     tree: &Octree,
@@ -138,14 +139,33 @@ pub fn gpu_bench(
     ];
     cpu_vs_gpu(&structures, gpu, sc, sets, budget, out)?;
     lane_isas(tree, &dag, sc, sets, out);
-    node_order(&dag, sc, sets, out)
+    node_order(&dag, sc, sets, out)?;
+    let (rays, comparisons) = differing_totals(out);
+    out.tensor("differing_rays", Tensor::scalar(rays));
+    out.tensor("differing_comparisons", Tensor::scalar(comparisons as f64));
+    Ok(())
+}
+
+/// Every `*_differing_rays` figure of `out` (metric or counter: each path
+/// against its referee path on the same rays) summed, and how many there
+/// are: a bench whose paths all agree reads 0 over a count that is not.
+fn differing_totals(out: &Outputs) -> (f64, usize) {
+    let is = |k: &String| k.ends_with("_differing_rays");
+    let m = out.metrics.iter().filter(|(k, _)| is(k)).map(|(_, &v)| v);
+    let c = out
+        .counters
+        .iter()
+        .filter(|(k, _)| is(k))
+        .map(|(_, &v)| v as f64);
+    m.chain(c).fold((0.0, 0), |(sum, n), v| (sum + v, n + 1))
 }
 
 /// The lane cast compiled for each [`LaneIsa`] from AVX2 up that this CPU
 /// has, in [`ROUNDS`] interleaved rounds per structure and set:
 /// `{structure}_lanes_{isa}_{set}_mrays_per_cpu_s` and `..._mrays_per_s`
-/// (wall), `{structure}_{set}_lanes_{isa}_over_avx2` (per CPU-second, same
-/// run), `{structure}_{set}_lanes_{isa}_differing_rays` (against AVX2).
+/// (wall), and for the ISAs above AVX2 `{structure}_{set}_lanes_{isa}_over_avx2`
+/// (per CPU-second, same run) and `{structure}_{set}_lanes_{isa}_differing_rays`
+/// (against AVX2).
 pub fn lane_isas(tree: &Octree, dag: &Dag, sc: &VoxelScene, sets: &Sets<f32>, out: &mut Outputs) {
     let isas: Vec<LaneIsa> = LaneIsa::available(tree.nodes.len().max(dag.nodes.len()))
         .into_iter()
@@ -179,6 +199,9 @@ pub fn lane_isas(tree: &Octree, dag: &Dag, sc: &VoxelScene, sets: &Sets<f32>, ou
                     &format!("{sname}_lanes_{name}_{set}_mrays_per_s"),
                     n / acc[k].0.max(1e-12) / 1e6,
                 );
+                if k == 0 {
+                    continue;
+                }
                 out.metric(
                     &format!("{sname}_{set}_lanes_{name}_over_avx2"),
                     rate / per_cpu_s(n, acc[0].1).max(1e-12),
@@ -638,6 +661,18 @@ pub fn cpu_vs_gpu(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn differing_totals_add_every_differing_figure_and_count_them() {
+        let mut out = Outputs::default();
+        out.metric("octree_coherent_lanes_differing_rays", 0.0);
+        out.metric("dag_incoherent_beam_differing_rays", 3.0);
+        out.metric("octree_coherent_lanes_speedup", 7.0);
+        out.counter("dag_bfs_coherent_differing_rays", 2);
+        out.counter("rays", 9);
+        assert_eq!(differing_totals(&out), (5.0, 3));
+        assert_eq!(differing_totals(&Outputs::default()), (0.0, 0));
+    }
 
     #[test]
     fn sustained_submissions_fill_the_gpu_for_their_span() {
