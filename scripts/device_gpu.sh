@@ -80,8 +80,21 @@ for stage in "$@"; do
             nvidia-smi --query-gpu=timestamp,clocks.sm,utilization.gpu --format=csv,noheader,nounits \
                 -lms 100 >"$res/clocks_$f.csv" 2>/dev/null &
             smi=$!
+            # Why the clock was where it was (bit 0x1 GPU idle, 0x4 power
+            # cap, 0x8 / 0x20 / 0x40 / 0x80 slowdowns: NVML nvmlClocksEventReasons),
+            # in a sampler of its own so a driver that names the field
+            # otherwise loses only this file.
+            nvidia-smi --query-gpu=timestamp,clocks_event_reasons.active --format=csv,noheader \
+                -lms 100 >"$res/reasons_$f.csv" 2>&1 &
+            smi_reasons=$!
             "${tmo[@]}" "$hpj" perf --filter "$f" --out "$res/perf_$f" --json >"$res/perf_$f.json"
-            kill "$smi" 2>/dev/null
+            kill "$smi" "$smi_reasons" 2>/dev/null
+            python3 - "$res/reasons_$f.csv" <<'EOF' | tee -a "$res/perf_summary.txt"
+import collections, sys
+text = open(sys.argv[1]).read()
+seen = collections.Counter(l.split(",")[-1].strip() for l in text.splitlines() if "," in l)
+print("clock event reasons, samples of each mask:", dict(seen) or text[:200].strip())
+EOF
             python3 - "$res/clocks_$f.csv" <<'EOF' | tee -a "$res/perf_summary.txt"
 import csv, sys
 rows = [r for r in csv.reader(open(sys.argv[1])) if len(r) >= 3]
