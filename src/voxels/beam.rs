@@ -479,6 +479,9 @@ fn band_cones<F: CastReal>(
 /// for ray `tiles.band(bands.start).start`; `None` when no tile of these
 /// bands has one (rays without a shared origin, or an LOD cut).
 /// Sequential: the caller fans bands out.
+/// GPU twin: `kernels/voxel_beam.wgsl` `beam_nears` (one invocation a tile,
+/// in f64; unit test `gpu_beam_tiles_match_the_cpu_beam`, and every
+/// `voxel_gpu_*` camera parity case casts from its starts).
 pub fn beam_nears<F: CastReal, A: Addressing>(
     nodes: &[u32],
     depth: u32,
