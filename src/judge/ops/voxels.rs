@@ -58,7 +58,7 @@ ops! {
     "voxels.gpu_parity" GpuF32 gpu_parity ["rays", "count", "seed", "ulp_margin", "beam"]
         "GPU vs CPU f32 voxel cast on the same rays (GPU camera rays from its beam pre-pass unless param beam is false: the parity cases keep it checked): both outputs (and with scene attributes both attribute images, image / cpu_image), excused (referee ties / one-ulp near ties where leaves differ, and in contour casts slab ties at the leaf one cast passed), normal_not_excused (also normal ties where normals differ), t_not_excused (also t at normal ties and at contour slab entries within the plane's rounding)";
     "voxels.gpu_bench" GpuF32 gpu_bench ["count", "size", "seed"]
-        "CPU per-ray, CPU packet and GPU casts of octree and DAG in one run, coherent (size^2 camera; size 0: the scene's width x height) and incoherent (count): Mrays/CPU-s, GPU Mrays/s (submit to readback, and kernels alone on the GPU clock where the adapter has timestamps), packet speedup, mean iterations, node bytes per ray";
+        "CPU per-ray, CPU packet and GPU casts of octree and DAG in one run, coherent (size^2 camera; size 0: the scene's width x height) and incoherent (count): Mrays/CPU-s, GPU Mrays/s (submit to readback of one cast; `*_kernel_*` the kernels alone on the GPU clock where the adapter has timestamps, per cast of submissions of back-to-back casts filling about 50 ms, at most 256), packet speedup, mean iterations, node bytes per ray; tensors differing_rays (every *_differing_rays figure summed) and differing_comparisons (how many)";
     "voxels.attributes" Cpu attributes_op []
         "plain and DXT per-leaf colour/normal: {plain,dxt}_colour_psnr_db, _normal_{mean,p99,max}_deg, _bytes_per_voxel";
     "voxels.mesh_referee" Cpu mesh_referee_op ["tri_stride", "leaf_stride", "margin"]
@@ -272,8 +272,9 @@ fn contour_op(ctx: &OpCtx) -> Result<Outputs> {
 
 /// Casts the case's rays on the GPU: camera rays are generated there (and
 /// read back when `keep`) and cast from the GPU's beam starts where param
-/// `beam` (default `beam`) is true, other sources are uploaded. The cast,
-/// the rays as the kernel saw them, the cast parameters.
+/// `beam` (when the case gives none, the caller's `beam`) is true, other
+/// sources are uploaded. The cast, the rays as the kernel saw them, the
+/// cast parameters.
 fn gpu_run(
     ctx: &OpCtx,
     sc: &VoxelScene,
